@@ -1,0 +1,269 @@
+"""The mixed algorithm (SPEC 4; the paper's Section 3) over all triplets of a problem at once.
+
+For every triplet of matches, as one fixed-shape batch:
+
+1. three-point method: up to four poses; keep the one with the lowest Eq. 8 error over
+   all matches;
+2. linear method from it; converged with `e < threshold`: accepted (`ACCEPTED_LINEAR`);
+3. otherwise Levenberg-Marquardt, started from the linear result when that lowered the
+   error and from the three-point pose when it did not (a linear run stuck far away is
+   a poor start); LM not converged: `NONLINEAR_NOT_CONVERGED`;
+4. linear again from LM's pose; converged with `e < threshold`:
+   `ACCEPTED_AFTER_NONLINEAR`, else `REJECTED`.
+
+`threshold` is in pixels (the paper: given by the recognition system). With
+`threshold=None` it adapts to the problem: `(1 + rel_threshold)` times the lowest error of
+any triplet that converged at step 2, i.e. "reached the best pose found": that is what
+a PnP user wants accepted. If no triplet converged at step 2, every converged one is
+accepted at step 4.
+
+Under `vmap`, `lax.cond` and `lax.while_loop` run every branch and iteration for every
+element; so step 3 does not run on all triplets: the `nonlinear_budget` triplets most
+in need of it (not accepted, lowest error first) are gathered into a fixed-size buffer,
+refined, and scattered back. Triplets that needed LM but did not fit are marked
+`NOT_ATTEMPTED`. `nonlinear_budget=None` refines every triplet that needs it (the
+paper's experiment does).
+"""
+
+from __future__ import annotations
+
+import itertools
+from functools import cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._pose import Observations, Pose, transform
+from ._residuals import pixel_residuals, rms
+from ._solver.linear import linear
+from ._solver.nonlinear import nonlinear
+from ._solver.three_point import three_point
+from ._status import Status
+
+__all__ = [
+    "Initial",
+    "MixedResult",
+    "best_triplet",
+    "initial_poses",
+    "mixed",
+    "mixed_from_initial",
+    "triplet_indices",
+]
+
+
+@cache
+def triplet_indices(n: int) -> np.ndarray:
+    """All `C(n, 3)` index triplets `i < j < k`, shape `(T, 3)` (static: numpy)."""
+    return np.array(list(itertools.combinations(range(n), 3)), dtype=np.int32).reshape(-1, 3)
+
+
+class Initial(NamedTuple):
+    """Step 1 for every triplet: the best three-point root by Eq. 8 over all matches.
+
+    **Fields:** `pose` (batched `(T,)`), `error` `(T,)` px, `status` `(T,)`
+    (`OK` or why the triplet gave no pose), `triplets` `(T, 3)`."""
+
+    pose: Pose
+    error: Float[Array, " T"]
+    status: Int[Array, " T"]
+    triplets: Int[Array, "T 3"]
+
+
+class MixedResult(NamedTuple):
+    """The mixed algorithm's outcome for every triplet (all arrays have a leading `T`).
+
+    **Fields:**
+    - `pose`, `error`, `status`: the final pose of each triplet, its Eq. 8 error and
+      status (`ACCEPTED_LINEAR`, `ACCEPTED_AFTER_NONLINEAR`, `REJECTED`,
+      `NONLINEAR_NOT_CONVERGED`, `NOT_ATTEMPTED`, or the three-point failure).
+      A triplet that was not accepted keeps the last pose it reached.
+    - `initial`: step 1 (`Initial`).
+    - `linear_pose`, `linear_error`, `linear_status`: step 2.
+    - `threshold`: the acceptance threshold used (px).
+    """
+
+    pose: Pose
+    error: Float[Array, " T"]
+    status: Int[Array, " T"]
+    initial: Initial
+    linear_pose: Pose
+    linear_error: Float[Array, " T"]
+    linear_status: Int[Array, " T"]
+    threshold: Float[Array, ""]
+
+
+def _errors(poses: Pose, obs: Observations):
+    """Eq. 8 error of a batch of poses over all matches of one problem."""
+
+    def one(R, t):
+        return rms(pixel_residuals(transform(Pose(R, t), obs.model), obs), obs.mask)
+
+    return jax.vmap(one)(poses.R, poses.t)
+
+
+def initial_poses(
+    obs: Observations,
+    *,
+    min_area: float = 40.0,
+    collinear_tol: float = 1e-3,
+    triplets: np.ndarray | None = None,
+) -> Initial:
+    """Step 1 for every triplet (default: all `C(n, 3)`), roots picked by Eq. 8 error."""
+    n = obs.model.shape[0]
+    idx = triplet_indices(n) if triplets is None else np.asarray(triplets, dtype=np.int32)
+    dtype = obs.camera.dtype
+    big = jnp.finfo(dtype).max
+
+    def one(ijk):
+        sol = three_point(
+            obs.camera,
+            obs.model[ijk],
+            obs.image[ijk],
+            min_area=min_area,
+            collinear_tol=collinear_tol,
+        )
+        err = _errors(Pose(sol.R, sol.t), obs)
+        err = jnp.where(sol.valid, err, big)
+        best = jnp.argmin(err)
+        used = jnp.all(obs.mask[ijk])
+        status = jnp.where(used, sol.status, Status.TOO_FEW_POINTS).astype(jnp.int32)
+        status = jnp.where((status == Status.OK) & ~jnp.any(sol.valid), Status.NO_SOLUTION, status)
+        ok = status == Status.OK
+        pose = Pose(
+            jnp.where(ok, sol.R[best], jnp.eye(3, dtype=dtype)), jnp.where(ok, sol.t[best], 0)
+        )
+        return pose, jnp.where(ok, err[best], big), status
+
+    pose, error, status = jax.vmap(one)(jnp.asarray(idx))
+    return Initial(pose, error, status, jnp.asarray(idx))
+
+
+def _where_pose(pred, a: Pose, b: Pose) -> Pose:
+    return Pose(jnp.where(pred[:, None, None], a.R, b.R), jnp.where(pred[:, None], a.t, b.t))
+
+
+def mixed_from_initial(
+    obs: Observations,
+    initial: Initial,
+    *,
+    threshold: float | None = None,
+    rel_threshold: float = 0.01,
+    linear_iterations: int = 4,
+    nonlinear_budget: int | None = None,
+    max_steps: int = 50,
+) -> MixedResult:
+    """Steps 2-4 of the mixed algorithm for every triplet, from step 1's poses."""
+    dtype = obs.camera.dtype
+    big = jnp.finfo(dtype).max
+    T = initial.error.shape[0]
+    usable = initial.status == Status.OK
+
+    run_linear = jax.vmap(lambda R, t: linear(obs, Pose(R, t), iterations=linear_iterations))
+    lin = run_linear(initial.pose.R, initial.pose.t)
+    lin_ok = usable & (lin.status == Status.OK)
+    if threshold is None:
+        best = jnp.min(jnp.where(lin_ok, lin.error, big))
+        thr = jnp.where(best < big, best * (1 + rel_threshold), big)
+    else:
+        thr = jnp.asarray(threshold, dtype)
+    accepted2 = lin_ok & (lin.error < thr)
+    need = usable & ~accepted2
+
+    # Step 3 on a fixed-size buffer: the triplets that need it, lowest error first.
+    k = T if nonlinear_budget is None else max(1, min(int(nonlinear_budget), T))
+    start = _where_pose(
+        (lin.error < initial.error) & (lin.status != Status.NOT_FINITE), lin.pose, initial.pose
+    )
+    start_error = jnp.minimum(lin.error, initial.error)
+    if k == T:
+        slots = jnp.arange(T)
+    else:
+        _, slots = jax.lax.top_k(-jnp.where(need, start_error, big), k)
+    in_buffer = jnp.zeros(T, dtype=bool).at[slots].set(True) & need
+
+    def refine(R, t):
+        nl = nonlinear(obs, Pose(R, t), max_steps=max_steps)
+        again = linear(obs, nl.pose, iterations=linear_iterations)
+        return nl.status, again
+
+    nl_status, again = jax.vmap(refine)(start.R[slots], start.t[slots])
+    # Scatter back into full-size arrays (slots are unique).
+    nl_status_all = jnp.full(T, Status.NOT_ATTEMPTED, jnp.int32).at[slots].set(nl_status)
+    again_pose = Pose(
+        initial.pose.R.at[slots].set(again.pose.R), initial.pose.t.at[slots].set(again.pose.t)
+    )
+    again_error = jnp.full(T, big, dtype).at[slots].set(again.error)
+    again_status = jnp.full(T, Status.NOT_ATTEMPTED, jnp.int32).at[slots].set(again.status)
+
+    nl_ok = in_buffer & (nl_status_all == Status.OK)
+    accepted4 = nl_ok & (again_status == Status.OK) & (again_error < thr)
+    status = jnp.select(
+        [~usable, accepted2, accepted4, need & ~in_buffer, in_buffer & ~nl_ok],
+        [
+            initial.status,
+            Status.ACCEPTED_LINEAR,
+            Status.ACCEPTED_AFTER_NONLINEAR,
+            Status.NOT_ATTEMPTED,
+            Status.NONLINEAR_NOT_CONVERGED,
+        ],
+        Status.REJECTED,
+    ).astype(jnp.int32)
+    # Final pose: accepted pose, else the lowest-error pose the triplet reached.
+    use_again = in_buffer & (again_error < jnp.where(accepted2, -1, lin.error))
+    pose = _where_pose(use_again, again_pose, lin.pose)
+    error = jnp.where(use_again, again_error, lin.error)
+    pose = _where_pose(usable, pose, initial.pose)
+    error = jnp.where(usable, error, big)
+    return MixedResult(pose, error, status, initial, lin.pose, lin.error, lin.status, thr)
+
+
+def mixed(
+    obs: Observations,
+    *,
+    threshold: float | None = None,
+    rel_threshold: float = 0.01,
+    min_area: float = 40.0,
+    collinear_tol: float = 1e-3,
+    linear_iterations: int = 4,
+    nonlinear_budget: int | None = None,
+    max_steps: int = 50,
+    triplets: np.ndarray | None = None,
+) -> MixedResult:
+    """The mixed algorithm for every triplet of one problem (see the module docstring).
+
+    **Arguments:**
+    - `obs`: the problem (`jaxpose._pose.observations`).
+    - `threshold`: acceptance threshold on Eq. 8 (px), or `None` for the adaptive one.
+    - `rel_threshold`: the adaptive threshold's margin over the best error.
+    - `min_area`: the image-triangle area (px^2) below which a triplet is aligned.
+    - `collinear_tol`: model-triangle collinearity tolerance (scale-free).
+    - `linear_iterations`: steps of each linear run.
+    - `nonlinear_budget`: most triplets sent to Levenberg-Marquardt (`None`: all).
+    - `max_steps`: Levenberg-Marquardt's iteration budget.
+    - `triplets`: `(T, 3)` index triplets to use (default: all `C(n, 3)`).
+
+    **Returns:** a `MixedResult` with one entry per triplet.
+    """
+    initial = initial_poses(obs, min_area=min_area, collinear_tol=collinear_tol, triplets=triplets)
+    return mixed_from_initial(
+        obs,
+        initial,
+        threshold=threshold,
+        rel_threshold=rel_threshold,
+        linear_iterations=linear_iterations,
+        nonlinear_budget=nonlinear_budget,
+        max_steps=max_steps,
+    )
+
+
+def best_triplet(error: Float[Array, " T"], status: Int[Array, " T"]):
+    """Index of the problem's answer: the accepted triplet of lowest error, or, when none
+    was accepted, the lowest-error triplet overall. Returns `(index, accepted)`."""
+    big = jnp.finfo(error.dtype).max
+    ok = Status.is_success(status)
+    any_ok = jnp.any(ok)
+    index = jnp.where(any_ok, jnp.argmin(jnp.where(ok, error, big)), jnp.argmin(error))
+    return index, any_ok

@@ -1,0 +1,95 @@
+"""Residuals of the pose parameters (layer 2): pure functions `(params, obs) -> (2n,)`.
+
+All three share one fact about the visual-ray planes of Eq. 5: for a point `P = [p 1]`
+and a normalised camera (`c3 . P` is the depth `s`),
+
+    n1 . p + a1 = (c1 - u c3) . P = s (u^ - u),      n2 . p + a2 = s (v^ - v),
+
+so the plane residual of Eq. 10 is the pixel residual of Eq. 8 scaled by the depth.
+
+- `rotvec_residual`: `params = (r, t)`, `R = Rot(r)` (Rodrigues), pixel residuals.
+- `quaternion_residual`: `params = (q1, q2, q3, a, b, c)`, `q0 = sqrt(1 - |q|^2)`, pixel
+  residuals: the paper's non-linear parameterisation.
+- `ray_residual`: `params = (r, t)`, the visual-ray (Eq. 10) residuals `n_k . p + a_k`.
+
+Masked matches contribute zeros. Points at zero depth give a finite placeholder.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._pose import Observations
+from ._rotation import quaternion_vector_to_matrix, rotvec_to_matrix
+
+__all__ = [
+    "pixel_residuals",
+    "plane_residuals",
+    "quaternion_residual",
+    "ray_residual",
+    "rms",
+    "rotvec_residual",
+]
+
+
+def _homogeneous(points):
+    return jnp.concatenate([points, jnp.ones_like(points[:, :1])], axis=1)
+
+
+def plane_residuals(world: Float[Array, "n 3"], obs: Observations) -> Float[Array, "n 2"]:
+    """Eq. 10: `planes[i, k] . [p_i 1]` for world points `p_i` (zero where masked)."""
+    res = jnp.einsum("nkj,nj->nk", obs.planes, _homogeneous(world))
+    return jnp.where(obs.mask[:, None], res, 0)
+
+
+def depths(world: Float[Array, "n 3"], obs: Observations) -> Float[Array, " n"]:
+    """Depth `c3 . [p 1]` of world points in front of the (normalised) camera."""
+    return world @ obs.camera[2, :3] + obs.camera[2, 3]
+
+
+def safe_inverse_depth(s):
+    """`1 / s`, with a finite placeholder (and a zero gradient) where `s` is ~0."""
+    tiny = jnp.finfo(s.dtype).tiny ** 0.5
+    ok = jnp.abs(s) > tiny
+    return jnp.where(ok, 1 / jnp.where(ok, s, 1), 0)
+
+
+def pixel_residuals(world: Float[Array, "n 3"], obs: Observations) -> Float[Array, "n 2"]:
+    """Eq. 8's residuals `(u^ - u, v^ - v)` of world points (zero where masked)."""
+    return plane_residuals(world, obs) * safe_inverse_depth(depths(world, obs))[:, None]
+
+
+def rms(residuals: Float[Array, "n 2"], mask) -> Float[Array, ""]:
+    """Eq. 8: `sqrt(mean_i |r_i|^2)` over the masked matches, NaN-free (also its gradient)."""
+    count = jnp.maximum(jnp.sum(mask), 1)
+    ss = jnp.sum(jnp.where(mask[:, None], residuals, 0) ** 2) / count
+    ok = ss > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, ss, 1)), 0)
+
+
+@jax.jit
+def rotvec_residual(params: Float[Array, "6"], obs: Observations) -> Float[Array, " 2n"]:
+    """Pixel residuals of the pose `R = Rot(params[:3])` (rotation vector), `t = params[3:]`."""
+    world = obs.model @ rotvec_to_matrix(params[:3]).T + params[3:]
+    return pixel_residuals(world, obs).reshape(-1)
+
+
+@jax.jit
+def quaternion_residual(params: Float[Array, "6"], obs: Observations) -> Float[Array, " 2n"]:
+    """Pixel residuals of the pose `R = R(q0, q1, q2, q3)` with `(q1, q2, q3) = params[:3]`
+    and `q0 = sqrt(1 - |q|^2)` (the paper's non-linear parameterisation), `t = params[3:]`."""
+    world = obs.model @ quaternion_vector_to_matrix(params[:3]).T + params[3:]
+    return pixel_residuals(world, obs).reshape(-1)
+
+
+@jax.jit
+def ray_residual(params: Float[Array, "6"], obs: Observations) -> Float[Array, " 2n"]:
+    """Eq. 10: the visual-ray plane residuals `n_k . (Rot(r) m + t) + a_k`, `params = (r, t)`.
+
+    Equal to the pixel residual times the depth: the paper's linear method zeroes the
+    first-order expansion of these.
+    """
+    world = obs.model @ rotvec_to_matrix(params[:3]).T + params[3:]
+    return plane_residuals(world, obs).reshape(-1)

@@ -1,0 +1,529 @@
+r"""Three-point (analytic) pose: perspective-three-point (P3P) with every real solution.
+
+SPEC 3.1. Given three unit bearings $f_i$ (rows of `bearings`) and three model points
+$m_i$ (rows of `points`), find every rigid motion $(R, t)$ with
+
+$$\lambda_i f_i = R m_i + t, \qquad \lambda_i > 0, \qquad i = 1, 2, 3.$$
+
+**Formulation** (a degenerate-conic solver in the spirit of Lambda Twist, Persson and
+Nordberg, ECCV 2018; the code is written from the maths, not from any implementation):
+
+1. Distances are invariant under the motion, so with $a_{ij} = |m_i - m_j|^2$ and
+   $c_{ij} = f_i \cdot f_j$ the depths $\Lambda = (\lambda_1, \lambda_2, \lambda_3)$ solve
+   $\lambda_i^2 + \lambda_j^2 - 2 c_{ij} \lambda_i \lambda_j = a_{ij}$, i.e.
+   $\Lambda^T M_{ij} \Lambda = a_{ij}$.
+2. Eliminating the right-hand sides gives two homogeneous conics
+   $D_1 = a_{23} M_{12} - a_{12} M_{23}$, $D_2 = a_{23} M_{13} - a_{13} M_{23}$, whose
+   (at most four) common points are the directions of the solutions.
+3. A degenerate member $D_0 = \delta D_1 + \gamma D_2$ of their pencil is a root of the
+   homogeneous cubic $\det(\delta D_1 + \gamma D_2) = 0$. All three roots are found in
+   closed form (Cardano / trigonometric, on whichever of $\gamma/\delta$, $\delta/\gamma$
+   keeps the roots bounded) and polished by Newton's method. Among the real roots whose
+   conic is a *real* pair of lines (its two non-zero eigenvalues $\sigma_1 \sigma_2 < 0$),
+   the one with the best-separated lines (largest $-\sigma_1\sigma_2/(\sigma_1^2+\sigma_2^2)$,
+   from the trace and the principal minors, no eigen-solver) is kept. When the true pose
+   exists, such a root always exists: with two real common points exactly one root is
+   real and it is the real line pair; with four, all three are.
+4. The line pair is split without eigenvectors: $\operatorname{adj}(D_0) = -p p^T$ gives
+   the lines' common point $p$, and $D_0 + [p]_\times = 2 l m^T$ is of rank one.
+5. On each line the other conic $\gamma D_1 - \delta D_2$ (never zero there) is a
+   homogeneous quadratic, solved in the cancellation-free form; the scale comes from
+   $\sum_{ij} \Lambda^T M_{ij} \Lambda = \sum_{ij} a_{ij}$ and the sign from
+   $\sum_i \lambda_i > 0$.
+6. Each of the four candidate $\Lambda$ is polished by Gauss-Newton on the three distance
+   equations (closed-form 3x3 solve), checked (real, residual small, every
+   $\lambda_i > 0$), and turned into a pose by aligning orthonormal frames built from
+   $(m_1 - m_2, m_1 - m_3)$ and $(\lambda_1 f_1 - \lambda_2 f_2, \lambda_1 f_1 - \lambda_3 f_3)$;
+   $R$ is a rotation to rounding error by construction.
+
+Everything is scalar arithmetic on fixed shapes with `jnp.where` selection (no LAPACK, no
+eigen-decomposition), so `jax.vmap` turns it into wide element-wise kernels. Gradients:
+the closed-form part sits behind `stop_gradient`; the Gauss-Newton polish carries the
+implicit-function derivative of the depths, and every division, square root and
+normalisation goes through a safe-where shim, so neither values nor gradients are ever NaN.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from .._status import Status
+
+__all__ = ["ThreePointResult", "p3p", "three_point"]
+
+_NEWTON_CUBIC = 2
+_GAUSS_NEWTON = 3
+
+
+# --------------------------------------------------------------------------------------
+# Scalar helpers: a vector is a 3-tuple of arrays, a symmetric matrix a 6-tuple
+# (xx, yy, zz, xy, xz, yz). Under vmap every entry is one wide array.
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a, b):
+    return (
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    )
+
+
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _axpy(s, a, b):
+    """s * a + b."""
+    return (s * a[0] + b[0], s * a[1] + b[1], s * a[2] + b[2])
+
+
+def _scale(s, a):
+    return (s * a[0], s * a[1], s * a[2])
+
+
+def _safe_div(num, den, tiny):
+    ok = jnp.abs(den) > tiny
+    return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
+
+
+def _safe_rsqrt(x, tiny):
+    ok = x > tiny
+    return jnp.where(ok, jax.lax.rsqrt(jnp.where(ok, x, 1)), 0)
+
+
+def _safe_sqrt(x):
+    ok = x > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
+
+
+def _unit(a, tiny):
+    return _scale(_safe_rsqrt(_dot(a, a), tiny), a)
+
+
+def _sym_adj(s):
+    xx, yy, zz, xy, xz, yz = s
+    return (
+        yy * zz - yz * yz,
+        xx * zz - xz * xz,
+        xx * yy - xy * xy,
+        xz * yz - xy * zz,
+        xy * yz - xz * yy,
+        xy * xz - xx * yz,
+    )
+
+
+def _sym_inner(a, b):
+    """tr(A B) for symmetric A, B."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + 2 * (a[3] * b[3] + a[4] * b[4] + a[5] * b[5])
+
+
+def _sym_comb(alpha, a, beta, b):
+    return tuple(alpha * x + beta * y for x, y in zip(a, b, strict=True))
+
+
+def _sym_quad(s, u, v):
+    """u^T S v."""
+    xx, yy, zz, xy, xz, yz = s
+    return (
+        u[0] * (xx * v[0] + xy * v[1] + xz * v[2])
+        + u[1] * (xy * v[0] + yy * v[1] + yz * v[2])
+        + u[2] * (xz * v[0] + yz * v[1] + zz * v[2])
+    )
+
+
+def _barrier(tree):
+    """Stop XLA from fusing (and so recomputing) across solver stages."""
+    return jax.lax.optimization_barrier(tree)
+
+
+def _select(conds, options):
+    """options[k] where conds[k] first holds (conds[-1] may be None for the default)."""
+    out = options[-1]
+    for cond, opt in zip(conds[-2::-1], options[-2::-1], strict=True):
+        out = jax.tree.map(lambda o, x, c=cond: jnp.where(c, o, x), opt, out)
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Polynomials
+
+
+def _monic_cubic_roots(a, b, c, tiny):
+    """Real roots of x^3 + a x^2 + b x + c, three of them (a single real root is repeated).
+
+    Closed form (trigonometric for three real roots, Cardano's cancellation-free form for
+    one), then Newton polishing; returns `(roots, three_real)`.
+    """
+    a3 = a / 3
+    p = b - a * a3
+    q = c - a3 * b + 2 * a3 * a3 * a3
+    half_q = q / 2
+    p3 = p / 3
+    h = half_q * half_q + p3 * p3 * p3
+    one_real = h > 0
+
+    # One real root: u^3 = -q/2 - sign(q) sqrt(h), t = u - p / (3u).
+    sqrt_h = _safe_sqrt(jnp.where(one_real, h, 0))
+    w = jnp.where(half_q >= 0, -half_q - sqrt_h, -half_q + sqrt_h)
+    w = jnp.where(one_real, w, 1)
+    u = jnp.cbrt(w)
+    t_one = u - _safe_div(p3, u, tiny)
+
+    # Three real roots: t_k = 2 rho cos((phi - 2 pi k) / 3), cos(phi) = -q / (2 rho^3).
+    rho = _safe_sqrt(-p3)
+    cos_phi = jnp.clip(_safe_div(-half_q, rho * rho * rho, tiny), -1, 1)
+    phi = jnp.arccos(jnp.where(one_real, 0, cos_phi))
+    two_pi = 2 * jnp.pi
+    roots = []
+    for k in range(3):
+        t_three = 2 * rho * jnp.cos((phi - two_pi * k) / 3)
+        x = jnp.where(one_real, t_one, t_three) - a3
+        for _ in range(_NEWTON_CUBIC):
+            f = ((x + a) * x + b) * x + c
+            df = (3 * x + 2 * a) * x + b
+            x = x - _safe_div(f, df, tiny)
+        roots.append(x)
+    return roots, ~one_real
+
+
+class _Candidates(NamedTuple):
+    lam: tuple  # 3-tuple of (4,) depths, in the normalised scale
+    real: Bool[Array, "4"]  # a real solution of the distance equations (any depth sign)
+
+
+def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
+    """The (up to four) depth vectors of the normalised problem, a12 + a13 + a23 = 1."""
+    tiny = jnp.finfo(eps.dtype).tiny * 1e8
+    zero = jnp.zeros_like(c12)
+    one = jnp.ones_like(c12)
+
+    # D1 = a23 M12 - a12 M23, D2 = a23 M13 - a13 M23 (symmetric 6-tuples).
+    d1 = (a23, a23 - a12, -a12, -a23 * c12, zero, a12 * c23)
+    d2 = (a23, -a13, a23 - a13, zero, -a23 * c13, a13 * c23)
+    adj1, adj2 = _sym_adj(d1), _sym_adj(d2)
+    k0 = d1[0] * adj1[0] + d1[3] * adj1[3] + d1[4] * adj1[4]  # det D1
+    k3 = d2[0] * adj2[0] + d2[3] * adj2[3] + d2[4] * adj2[4]  # det D2
+    k1 = _sym_inner(adj1, d2)
+    k2 = _sym_inner(adj2, d1)
+    # det(delta D1 + gamma D2) = k3 g^3 + k2 g^2 d + k1 g d^2 + k0 d^3.
+    flip = jnp.abs(k0) > jnp.abs(k3)
+    lead = jnp.where(flip, k0, k3)
+    ca = _safe_div(jnp.where(flip, k1, k2), lead, tiny)
+    cb = _safe_div(jnp.where(flip, k2, k1), lead, tiny)
+    cc = _safe_div(jnp.where(flip, k3, k0), lead, tiny)
+    roots, _ = _monic_cubic_roots(ca, cb, cc, tiny)
+    roots, d1, d2, flip = _barrier((roots, d1, d2, flip))
+
+    # Score each root: D0 must be a real line pair (sigma1 sigma2 < 0), best separated.
+    best = None
+    for r in roots:
+        g = jnp.where(flip, one, r)
+        d = jnp.where(flip, r, one)
+        inv = _safe_rsqrt(g * g + d * d, tiny)
+        g, d = g * inv, d * inv
+        d0 = _sym_comb(d, d1, g, d2)
+        adj0 = _sym_adj(d0)
+        minors = adj0[0] + adj0[1] + adj0[2]  # sigma1 sigma2
+        trace = d0[0] + d0[1] + d0[2]  # sigma1 + sigma2
+        score = jnp.where(minors < 0, _safe_div(-minors, trace * trace - 2 * minors, tiny), -1)
+        cand = (score, g, d, d0, adj0)
+        if best is None:
+            best = cand
+        else:
+            best = jax.tree.map(lambda n, o, s=score > best[0]: jnp.where(s, n, o), cand, best)
+    score, g, d, d0, adj0 = _barrier(best)
+    pair_ok = score > 0
+
+    # adj(D0) = -p p^T: p is the lines' common point, from the best-conditioned column.
+    bxx, byy, bzz, bxy, bxz, byz = adj0
+    use_x = (bxx <= byy) & (bxx <= bzz)
+    use_y = ~use_x & (byy <= bzz)
+    col = _select([use_x, use_y, None], [(bxx, bxy, bxz), (bxy, byy, byz), (bxz, byz, bzz)])
+    diag = _select([use_x, use_y, None], [bxx, byy, bzz])
+    pair_ok = pair_ok & (diag < 0)
+    p = _scale(_safe_rsqrt(-diag, tiny), col)
+    p, pair_ok = _barrier((p, pair_ok))
+
+    # N = D0 + [p]_x = 2 l m^T: the largest column is l, the largest row is m.
+    xx, yy, zz, xy, xz, yz = d0
+    n_rows = (
+        (xx, xy - p[2], xz + p[1]),
+        (xy + p[2], yy, yz - p[0]),
+        (xz - p[1], yz + p[0], zz),
+    )
+    n_cols = tuple(tuple(n_rows[i][j] for i in range(3)) for j in range(3))
+
+    def largest(vs):
+        norms = [_dot(v, v) for v in vs]
+        first = (norms[0] >= norms[1]) & (norms[0] >= norms[2])
+        second = ~first & (norms[1] >= norms[2])
+        return _select([first, second, None], list(vs))
+
+    lines = _barrier((largest(n_cols), largest(n_rows)))
+
+    # On each line: Lambda = alpha p^ + beta v^, with v^ = l^ x p^ in the line's plane;
+    # the complementary conic restricted there is a homogeneous quadratic.
+    d_perp = _sym_comb(g, d1, -d, d2)
+    p_hat = _unit(p, tiny)
+    lam = ([], [], [])
+    real = []
+    for line in lines:
+        v_hat = _unit(_cross(line, p_hat), tiny)
+        qa = _sym_quad(d_perp, p_hat, p_hat)
+        qb = 2 * _sym_quad(d_perp, p_hat, v_hat)
+        qc = _sym_quad(d_perp, v_hat, v_hat)
+        disc = qb * qb - 4 * qa * qc
+        # A tangency (double solution) can come out a hair negative: accept, then let the
+        # Gauss-Newton residual test decide.
+        disc_ok = disc >= -64 * eps * (qb * qb + 4 * jnp.abs(qa * qc))
+        sq = _safe_sqrt(disc)
+        qq = jnp.where(qb >= 0, -(qb + sq) / 2, -(qb - sq) / 2)
+        for alpha, beta in ((qq, qa), (qc, qq)):
+            dvec = _axpy(alpha, p_hat, _scale(beta, v_hat))
+            quad = 2 * _dot(dvec, dvec) - 2 * (
+                c12 * dvec[0] * dvec[1] + c13 * dvec[0] * dvec[2] + c23 * dvec[1] * dvec[2]
+            )
+            s = _safe_rsqrt(quad, tiny)
+            s = jnp.where(dvec[0] + dvec[1] + dvec[2] < 0, -s, s)
+            for i in range(3):
+                lam[i].append(s * dvec[i])
+            real.append(pair_ok & disc_ok & (quad > tiny))
+    lam = tuple(jnp.stack(x) for x in lam)
+    return _Candidates(lam=lam, real=jnp.stack(real))
+
+
+def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
+    """Polish the depths on lambda_i^2 + lambda_j^2 - 2 c_ij lambda_i lambda_j = a_ij."""
+    l1, l2, l3 = lam
+
+    def residual(l1, l2, l3):
+        return (
+            l1 * l1 + l2 * l2 - 2 * c12 * l1 * l2 - a12,
+            l1 * l1 + l3 * l3 - 2 * c13 * l1 * l3 - a13,
+            l2 * l2 + l3 * l3 - 2 * c23 * l2 * l3 - a23,
+        )
+
+    def size(r):
+        return jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))
+
+    r = residual(l1, l2, l3)
+    err = size(r)
+    for _ in range(_GAUSS_NEWTON):
+        # J = [[ja, jb, 0], [jc, 0, jd], [0, je, jf]], solved by its adjugate.
+        ja, jb = 2 * (l1 - c12 * l2), 2 * (l2 - c12 * l1)
+        jc, jd = 2 * (l1 - c13 * l3), 2 * (l3 - c13 * l1)
+        je, jf = 2 * (l2 - c23 * l3), 2 * (l3 - c23 * l2)
+        det = -ja * jd * je - jb * jc * jf
+        s1 = -jd * je * r[0] - jb * jf * r[1] + jb * jd * r[2]
+        s2 = -jc * jf * r[0] + ja * jf * r[1] - ja * jd * r[2]
+        s3 = jc * je * r[0] - ja * je * r[1] - jb * jc * r[2]
+        n1 = l1 - _safe_div(s1, det, tiny)
+        n2 = l2 - _safe_div(s2, det, tiny)
+        n3 = l3 - _safe_div(s3, det, tiny)
+        nr = residual(n1, n2, n3)
+        nerr = size(nr)
+        better = nerr < err
+        l1, l2, l3 = (jnp.where(better, n, o) for n, o in ((n1, l1), (n2, l2), (n3, l3)))
+        r = tuple(jnp.where(better, n, o) for n, o in zip(nr, r, strict=True))
+        err = jnp.where(better, nerr, err)
+    return (l1, l2, l3), err
+
+
+class _P3PFull(NamedTuple):
+    R: Float[Array, "4 3 3"]
+    t: Float[Array, "4 3"]
+    valid: Bool[Array, "4"]
+    real: Bool[Array, "4"]
+
+
+def _p3p_full(bearings, points) -> _P3PFull:
+    dtype = jnp.promote_types(jnp.result_type(bearings, points), jnp.float32)
+    bearings = jnp.asarray(bearings, dtype)
+    points = jnp.asarray(points, dtype)
+    eps = jnp.asarray(jnp.finfo(dtype).eps, dtype)
+    tiny = jnp.finfo(dtype).tiny * 1e8
+
+    f = [_unit(tuple(bearings[i, k] for k in range(3)), tiny) for i in range(3)]
+    m = [tuple(points[i, k] for k in range(3)) for i in range(3)]
+    x12, x13, x23 = _sub(m[0], m[1]), _sub(m[0], m[2]), _sub(m[1], m[2])
+    a12, a13, a23 = _dot(x12, x12), _dot(x13, x13), _dot(x23, x23)
+    total = a12 + a13 + a23
+    inv_total = _safe_div(1, total, tiny)
+    n12, n13, n23 = a12 * inv_total, a13 * inv_total, a23 * inv_total
+    c12, c13, c23 = _dot(f[0], f[1]), _dot(f[0], f[2]), _dot(f[1], f[2])
+
+    sg = jax.lax.stop_gradient
+    cand = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
+    lam, err = _gauss_newton(
+        tuple(sg(x) for x in cand.lam),
+        *(jnp.expand_dims(x, 0) for x in (c12, c13, c23, n12, n13, n23)),
+        tiny,
+    )
+    real = cand.real & (err <= jnp.sqrt(eps))
+    positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
+    scale = _safe_sqrt(total)
+    lam = tuple(scale * x for x in lam)
+
+    # Orthonormal frames from two edges, model side and camera side: R = Fy Fx^T.
+    def frame(e1, e2):
+        ex = _unit(e1, tiny)
+        ez = _unit(_cross(e1, e2), tiny)
+        return ex, _cross(ez, ex), ez
+
+    fx = frame(x12, x13)
+    f0 = [tuple(jnp.expand_dims(c, 0) for c in fi) for fi in f]
+    p1 = _scale(lam[0], f0[0])
+    y12 = _sub(p1, _scale(lam[1], f0[1]))
+    y13 = _sub(p1, _scale(lam[2], f0[2]))
+    fy = frame(y12, y13)
+    rot = [[sum(fy[k][i] * fx[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+    # t = mean_i (lambda_i f_i - R m_i)
+    trans = []
+    for i in range(3):
+        acc = 0
+        for n in range(3):
+            acc = acc + lam[n] * f0[n][i] - sum(rot[i][j] * m[n][j] for j in range(3))
+        trans.append(acc / 3)
+
+    R = jnp.stack([jnp.stack(row, axis=-1) for row in rot], axis=-2)  # (4, 3, 3)
+    t = jnp.stack(trans, axis=-1)  # (4, 3)
+    finite = jnp.all(jnp.isfinite(R), axis=(-2, -1)) & jnp.all(jnp.isfinite(t), axis=-1)
+    real = real & finite
+    valid = real & positive
+    R = jnp.where(valid[:, None, None], R, jnp.eye(3, dtype=dtype))
+    t = jnp.where(valid[:, None], t, 0)
+    return _P3PFull(R=R, t=t, valid=valid, real=real)
+
+
+def p3p(
+    bearings: Float[ArrayLike, "3 3"], points: Float[ArrayLike, "3 3"]
+) -> tuple[Float[Array, "4 3 3"], Float[Array, "4 3"], Bool[Array, "4"]]:
+    r"""Every pose with $\lambda_i f_i = R m_i + t$, $\lambda_i > 0$ (see the module docstring).
+
+    **Arguments:**
+
+    - `bearings`: `(3, 3)`, row $i$ the unit direction $f_i$ towards point $i$ (normalised
+      again here).
+    - `points`: `(3, 3)`, row $i$ the model point $m_i$.
+
+    **Returns:** `(R, t, valid)`: `R` `(4, 3, 3)` rotations, `t` `(4, 3)` translations and
+    `valid` `(4,)` bool. Invalid slots hold the identity and zeros: never NaN. One problem
+    at a time; `jax.vmap` it for many.
+    """
+    out = _p3p_full(bearings, points)
+    return out.R, out.t, out.valid
+
+
+class ThreePointResult(NamedTuple):
+    """Output of [`three_point`][]."""
+
+    R: Float[Array, "4 3 3"]
+    """Rotations (model to world), invalid slots the identity."""
+    t: Float[Array, "4 3"]
+    """Translations (model to world), invalid slots zero: world point `p = R m + t`."""
+    valid: Bool[Array, "4"]
+    """Which slots hold a solution."""
+    status: Int[Array, ""]
+    """An `int32` [`Status`][]: `OK`, `DEGENERATE_IMAGE`, `DEGENERATE_MODEL`, `NO_SOLUTION`
+    (no real root), `BEHIND_CAMERA` (real roots, all with some negative depth) or
+    `NOT_FINITE`."""
+
+
+def three_point(
+    camera: Float[ArrayLike, "3 4"],
+    model: Float[ArrayLike, "3 3"],
+    image: Float[ArrayLike, "3 2"],
+    *,
+    min_area: float = 40.0,
+    collinear_tol: float = 1e-3,
+) -> ThreePointResult:
+    r"""Three-segment method of SPEC 3.1: all poses from three 2D-3D matches.
+
+    The camera is the paper's projection matrix, $s [u, v, 1]^T = C [p, 1]^T$, known up to
+    any non-zero scale (of either sign). With $M = C_{:, :3}$, the centre is
+    $c = -M^{-1} C_{:, 3}$ and the world-frame bearing of pixel $(u, v)$ is
+    $\operatorname{sign}(\det M) M^{-1} [u, v, 1]^T = \operatorname{adj}(M) [u, v, 1]^T / |\det M|$,
+    normalised, so that positive depth is in front of the camera. Then [`p3p`][] gives
+    $(R, t')$ and $t = t' + c$.
+
+    **Arguments:**
+
+    - `camera`: `(3, 4)` projection matrix $C$ (world frame).
+    - `model`: `(3, 3)` model points $m_i$ (rows).
+    - `image`: `(3, 2)` pixels $(u_i, v_i)$ (rows).
+    - `min_area`: smallest accepted image triangle area, pixel^2 (the paper: 40).
+    - `collinear_tol`: smallest accepted model triangle area / (longest edge)^2
+      (scale invariant; an equilateral triangle has 0.433).
+
+    **Returns:** a [`ThreePointResult`][]. Degenerate or non-finite triplets get
+    `valid` all False and finite placeholders. One triplet at a time; vmap for many.
+    """
+    camera = jnp.asarray(camera)
+    model = jnp.asarray(model)
+    image = jnp.asarray(image)
+    dtype = jnp.promote_types(jnp.result_type(camera, model, image), jnp.float32)
+    camera, model, image = (jnp.asarray(x, dtype) for x in (camera, model, image))
+    tiny = jnp.finfo(dtype).tiny * 1e8
+
+    finite = jnp.all(jnp.isfinite(camera)) & jnp.all(jnp.isfinite(model))
+    finite = finite & jnp.all(jnp.isfinite(image))
+    camera = jnp.where(finite, camera, jnp.eye(3, 4, dtype=dtype))
+    model = jnp.where(finite, model, jnp.eye(3, dtype=dtype))
+    image = jnp.where(finite, image, jnp.zeros((3, 2), dtype))
+
+    # Image triangle area (pixel^2).
+    e1 = image[1] - image[0]
+    e2 = image[2] - image[0]
+    area_img = jnp.abs(e1[0] * e2[1] - e1[1] * e2[0]) / 2
+    image_ok = area_img >= min_area
+
+    # Model collinearity: area / longest edge^2.
+    m = [tuple(model[i, k] for k in range(3)) for i in range(3)]
+    x12, x13, x23 = _sub(m[1], m[0]), _sub(m[2], m[0]), _sub(m[2], m[1])
+    cr = _cross(x12, x13)
+    area_model = _safe_sqrt(_dot(cr, cr)) / 2
+    longest = jnp.maximum(jnp.maximum(_dot(x12, x12), _dot(x13, x13)), _dot(x23, x23))
+    model_ok = area_model >= collinear_tol * longest
+    model_ok = model_ok & (longest > tiny)
+
+    # Centre and world-frame bearings via the adjugate of M.
+    M = [tuple(camera[i, k] for k in range(3)) for i in range(3)]
+    # adj(M) columns are cross products of rows: adj(M) = [M1 x M2, M2 x M0, M0 x M1].
+    cols = (_cross(M[1], M[2]), _cross(M[2], M[0]), _cross(M[0], M[1]))
+    det = _dot(M[0], cols[0])
+    c4 = tuple(camera[i, 3] for i in range(3))
+
+    def adj_mul(v):  # adj(M) v
+        return tuple(cols[0][i] * v[0] + cols[1][i] * v[1] + cols[2][i] * v[2] for i in range(3))
+
+    centre = _scale(-_safe_div(1, det, tiny), adj_mul(c4))
+    one = jnp.ones((), dtype)
+    rows = [jnp.stack(adj_mul((image[i, 0], image[i, 1], one))) for i in range(3)]
+    bearings = jnp.stack(rows)
+    camera_ok = jnp.abs(det) > tiny
+
+    sol = _p3p_full(bearings, model)
+    usable = finite & image_ok & model_ok & camera_ok
+    valid = sol.valid & usable
+    R = jnp.where(valid[:, None, None], sol.R, jnp.eye(3, dtype=dtype))
+    t = jnp.where(valid[:, None], sol.t + jnp.stack(centre), 0)
+
+    status = jnp.where(
+        jnp.any(valid),
+        int(Status.OK),
+        jnp.where(
+            jnp.any(sol.real & camera_ok), int(Status.BEHIND_CAMERA), int(Status.NO_SOLUTION)
+        ),
+    )
+    status = jnp.where(model_ok, status, int(Status.DEGENERATE_MODEL))
+    status = jnp.where(image_ok, status, int(Status.DEGENERATE_IMAGE))
+    status = jnp.where(finite, status, int(Status.NOT_FINITE))
+    return ThreePointResult(R=R, t=t, valid=valid, status=status.astype(jnp.int32))

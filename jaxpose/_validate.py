@@ -1,0 +1,219 @@
+"""Validation of user input at the public (numpy) boundary.
+
+Code under `jit` never raises on data (it reports status codes); the public entry points
+call these helpers first, so that a wrong shape, a NaN or a singular camera is reported
+at once as a `ValueError` whose message names the offending argument.
+
+Every helper returns a numpy array in a canonical layout: floating point (float32 stays
+float32, float64 stays float64, other real types become float64).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "as_camera",
+    "as_dist_coeffs",
+    "as_intrinsics",
+    "as_matching",
+    "as_points",
+]
+
+#: Distortion vector lengths OpenCV accepts.
+DIST_COEFF_SIZES = (4, 5, 8, 12, 14)
+
+#: A 3x3 matrix is singular when its smallest singular value is below this fraction of its
+#: largest (computed in float64).
+SINGULAR_RTOL = 1e-12
+
+
+def _as_real_array(x, name):
+    """`x` as a numpy array of a real floating dtype, or ValueError naming `name`."""
+    if x is None:
+        raise ValueError(f"{name} is required, got None")
+    try:
+        arr = np.asarray(x)
+    except Exception as exc:  # ragged lists and the like
+        raise ValueError(f"{name} could not be read as an array: {exc}") from exc
+    if arr.dtype == np.bool_ or not (
+        np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
+    ):
+        raise ValueError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    if arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float64)
+    return arr
+
+
+def _check_finite(arr, name):
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+
+
+def as_points(x, name, dim, *, min_count=1):
+    """Validate an array of `dim`-dimensional points.
+
+    **Arguments:**
+
+    - `x`: array-like of shape (n, dim), or OpenCV's (n, 1, dim) or (1, n, dim).
+    - `name`: the argument's name, used in error messages.
+    - `dim`: point dimension (2 for pixels, 3 for model points).
+    - `min_count`: the fewest points accepted.
+
+    **Returns:**
+
+    numpy array of shape (n, dim): float32 if given float32, else float64.
+
+    **Raises:**
+
+    `ValueError` naming `name` for a wrong shape, non-real dtype, NaN/inf, or fewer than
+    `min_count` points.
+    """
+    arr = _as_real_array(x, name)
+    if arr.ndim == 3 and arr.shape[2] == dim and (arr.shape[1] == 1 or arr.shape[0] == 1):
+        arr = arr.reshape(-1, dim)
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise ValueError(
+            f"{name} must have shape (n, {dim}) (or OpenCV's (n, 1, {dim}) / (1, n, {dim})),"
+            f" got {arr.shape}"
+        )
+    if arr.shape[0] < min_count:
+        raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[0]}")
+    _check_finite(arr, name)
+    return arr
+
+
+def _check_nonsingular(M, name, what):
+    s = np.linalg.svd(np.asarray(M, dtype=np.float64), compute_uv=False)
+    if not s[0] > 0 or s[-1] <= SINGULAR_RTOL * s[0]:
+        cond = np.inf if s[-1] == 0 else s[0] / s[-1]
+        raise ValueError(f"{name}: {what} is singular (condition number {cond:.3g})")
+
+
+def as_camera(C, name="camera"):
+    """Validate a 3x4 projection matrix `C = [M | c4]`.
+
+    **Arguments:**
+
+    - `C`: array-like (3, 4).
+    - `name`: the argument's name, used in error messages.
+
+    **Returns:**
+
+    numpy (3, 4), float32 if given float32, else float64.
+
+    **Raises:**
+
+    `ValueError` naming `name` for a wrong shape, NaN/inf, or a singular `M`
+    (smallest singular value at most `SINGULAR_RTOL` times the largest).
+    """
+    arr = _as_real_array(C, name)
+    if arr.shape != (3, 4):
+        raise ValueError(f"{name} must be a 3x4 projection matrix, got shape {arr.shape}")
+    _check_finite(arr, name)
+    _check_nonsingular(arr[:, :3], name, "its left 3x3 block M")
+    return arr
+
+
+def as_intrinsics(K, name="camera_matrix"):
+    """Validate a pinhole intrinsic matrix `K`.
+
+    Accepted: shape (3, 3), finite, `K[2,2] != 0`, lower triangle zero (up to
+    `1e-9 * max|K|`), focal lengths `K[0,0] / K[2,2] > 0` and `K[1,1] / K[2,2] > 0`,
+    non-singular.
+
+    **Arguments:**
+
+    - `K`: array-like (3, 3).
+    - `name`: the argument's name, used in error messages.
+
+    **Returns:**
+
+    numpy (3, 3), float32 if given float32, else float64 (not rescaled).
+
+    **Raises:**
+
+    `ValueError` naming `name` otherwise.
+    """
+    arr = _as_real_array(K, name)
+    if arr.shape != (3, 3):
+        raise ValueError(f"{name} must be a 3x3 intrinsic matrix, got shape {arr.shape}")
+    _check_finite(arr, name)
+    k = arr.astype(np.float64)
+    if k[2, 2] == 0:
+        raise ValueError(f"{name}[2, 2] must be nonzero")
+    scale = np.max(np.abs(k))
+    lower = np.abs(np.array([k[1, 0], k[2, 0], k[2, 1]]))
+    if np.any(lower > 1e-9 * scale):
+        raise ValueError(
+            f"{name} must be upper triangular (a pinhole camera matrix); "
+            f"got lower entries {k[1, 0]}, {k[2, 0]}, {k[2, 1]}"
+        )
+    fx, fy = k[0, 0] / k[2, 2], k[1, 1] / k[2, 2]
+    if not (fx > 0 and fy > 0):
+        raise ValueError(f"{name} must have positive focal lengths, got fx={fx}, fy={fy}")
+    _check_nonsingular(k, name, "the matrix")
+    return arr
+
+
+def as_dist_coeffs(d, name="dist_coeffs"):
+    """Validate OpenCV distortion coefficients.
+
+    **Arguments:**
+
+    - `d`: None, or array-like of 4, 5, 8, 12 or 14 numbers (any of the shapes (k,),
+      (k, 1), (1, k)).
+    - `name`: the argument's name, used in error messages.
+
+    **Returns:**
+
+    None when `d` is None, empty or all zero (no distortion); else numpy float64 (k,).
+
+    **Raises:**
+
+    `ValueError` naming `name` for another size, a matrix shape, or NaN/inf.
+    """
+    if d is None:
+        return None
+    arr = _as_real_array(d, name)
+    if arr.size == 0:
+        return None
+    if arr.ndim > 2 or (arr.ndim == 2 and 1 not in arr.shape):
+        raise ValueError(f"{name} must be a vector, got shape {arr.shape}")
+    arr = arr.reshape(-1).astype(np.float64)
+    if arr.size not in DIST_COEFF_SIZES:
+        raise ValueError(
+            f"{name} must have {', '.join(map(str, DIST_COEFF_SIZES))} elements, got {arr.size}"
+        )
+    _check_finite(arr, name)
+    if not np.any(arr):
+        return None
+    return arr
+
+
+def as_matching(object_points, image_points, *, min_count=1):
+    """Validate matched model points (n, 3) and image points (n, 2).
+
+    **Arguments:**
+
+    - `object_points`: array-like (n, 3) (or OpenCV layouts, see `as_points`).
+    - `image_points`: array-like (n, 2) (or OpenCV layouts).
+    - `min_count`: the fewest matches accepted.
+
+    **Returns:**
+
+    `(object_points, image_points)` as numpy arrays (n, 3) and (n, 2).
+
+    **Raises:**
+
+    `ValueError` naming `object_points` or `image_points` for a bad array, or both
+    when their counts differ.
+    """
+    obj = as_points(object_points, "object_points", 3, min_count=min_count)
+    img = as_points(image_points, "image_points", 2, min_count=min_count)
+    if obj.shape[0] != img.shape[0]:
+        raise ValueError(
+            f"object_points and image_points must match one to one: object_points has "
+            f"{obj.shape[0]} points, image_points has {img.shape[0]}"
+        )
+    return obj, img
