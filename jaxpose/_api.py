@@ -63,7 +63,7 @@ def solve(
     rel_threshold: float = 0.01,
     min_area: float = 40.0,
     collinear_tol: float = 1e-3,
-    linear_iterations: int = 4,
+    linear_iterations: int = 5,
     nonlinear_budget: int | None = 32,
     max_steps: int = 50,
 ) -> Solution:

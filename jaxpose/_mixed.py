@@ -151,7 +151,7 @@ def mixed_from_initial(
     *,
     threshold: float | None = None,
     rel_threshold: float = 0.01,
-    linear_iterations: int = 4,
+    linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
     max_steps: int = 50,
 ) -> MixedResult:
@@ -227,7 +227,7 @@ def mixed(
     rel_threshold: float = 0.01,
     min_area: float = 40.0,
     collinear_tol: float = 1e-3,
-    linear_iterations: int = 4,
+    linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
     max_steps: int = 50,
     triplets: np.ndarray | None = None,

@@ -28,7 +28,7 @@ class Pose(NamedTuple):
 
 def transform(pose: Pose, points: Float[Array, "n 3"]) -> Float[Array, "n 3"]:
     """World coordinates `R m + t` of model points `m`."""
-    return points @ pose.R.T + pose.t
+    return points @ pose.R.T + pose.t[None, :]
 
 
 class Observations(NamedTuple):

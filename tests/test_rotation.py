@@ -37,9 +37,6 @@ from jaxpose._rotation import (
     rpy_to_matrix,
 )
 
-# One xdist worker runs this whole file, so its compiled functions are shared by all tests.
-pytestmark = pytest.mark.xdist_group("rotation")
-
 ATOL = 1e-12
 FLOAT32_ATOL = 2e-6
 FD_STEP = 1e-6

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
@@ -46,10 +47,25 @@ class NonlinearResult(NamedTuple):
     status: Int[Array, ""]
 
 
+class _TrustRegion(optx.ClassicalTrustRegion):
+    """optimistix's classical trust region, with its initial step size in the parameters'
+    dtype (optimistix creates it as `jnp.array(1.0)`, float64 whenever x64 is enabled,
+    which breaks float32 solves in an x64 process)."""
+
+    def init(self, y, f_info_struct):
+        state = super().init(y, f_info_struct)
+        return type(state)(step_size=state.step_size.astype(jax.tree.leaves(y)[0].dtype))
+
+
+def _solver(rtol, atol):
+    lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    return eqx.tree_at(lambda s: s.search, lm, _TrustRegion())
+
+
 def _chart(y, base_world, centre, length):
     """World points of the local parameters `y` (see the module docstring)."""
     Rq = quaternion_vector_to_matrix(y[:3])
-    return (base_world - centre) @ Rq.T + centre + length * y[3:]
+    return (base_world - centre[None, :]) @ Rq.T + (centre + length * y[3:])[None, :]
 
 
 def _residual(y, args):
@@ -63,6 +79,7 @@ def nonlinear(
     *,
     rtol: float | None = None,
     atol: float | None = None,
+    gtol: float | None = None,
     max_steps: int = 50,
 ) -> NonlinearResult:
     """Levenberg-Marquardt (optimistix) on Eq. 8 from `init`, for one problem.
@@ -71,27 +88,31 @@ def nonlinear(
     - `obs`: the problem (`jaxpose._pose.observations`).
     - `init`: starting pose (the paper starts from the three-point pose).
     - `rtol`, `atol`: optimistix's relative and absolute tolerances on the parameters and
-      the cost (defaults: `1e-10` / `1e-12` in float64, `1e-5` / `1e-6` in float32).
-    - `max_steps`: iteration budget; exceeding it is reported as not converged.
+      the cost (defaults: `1e-8` / `1e-10` in float64, `1e-5` / `1e-6` in float32).
+    - `gtol`: stationarity test: converged when every Jacobian column makes a cosine below
+      `gtol` with the residual (default `1e-6` in float64, `1e-2` in float32).
+    - `max_steps`: iteration budget. Running out of it counts as converged only if the
+      pose is stationary (see `gtol`).
 
     **Returns:** a `NonlinearResult` with the pose `R = R(q) R0`, `t = R(q)(t0 - c0) + c0 + L d`.
     """
     dtype = obs.camera.dtype
     wide = jnp.finfo(dtype).bits >= 64
-    rtol = (1e-10 if wide else 1e-5) if rtol is None else rtol
-    atol = (1e-12 if wide else 1e-6) if atol is None else atol
+    rtol = (1e-8 if wide else 1e-5) if rtol is None else rtol
+    atol = (1e-10 if wide else 1e-6) if atol is None else atol
+    gtol = (1e-6 if wide else 1e-2) if gtol is None else gtol
+    tiny = jnp.finfo(dtype).tiny ** 0.5
     init = Pose(jnp.asarray(init.R, dtype), jnp.asarray(init.t, dtype))
     base = transform(init, obs.model)
     w = obs.mask.astype(dtype)
     count = jnp.maximum(jnp.sum(w), 1)
     centre = jnp.sum(base * w[:, None], axis=0) / count
-    length = jnp.sqrt(jnp.sum(jnp.sum((base - centre) ** 2, axis=1) * w) / count)
+    length = jnp.sqrt(jnp.sum(jnp.sum((base - centre[None, :]) ** 2, axis=1) * w) / count)
     length = jnp.where(length > 0, length, 1)
     args = (obs, base, centre, length)
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     sol = optx.least_squares(
-        _residual, solver, jnp.zeros(6, dtype), args, max_steps=max_steps, throw=False
+        _residual, _solver(rtol, atol), jnp.zeros(6, dtype), args, max_steps=max_steps, throw=False
     )
     y = sol.value
     Rq = quaternion_vector_to_matrix(y[:3])
@@ -100,7 +121,18 @@ def nonlinear(
     error = rms(pixel_residuals(world, obs), obs.mask)
     finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(y))
     in_front = jnp.all(jnp.where(obs.mask, depths(world, obs) > 0, True))
-    converged = sol.result == optx.RESULTS.successful
+    # Converged means stationary: the residual is orthogonal to every Jacobian column
+    # (MINPACK's gtol test). optimistix tests termination only on accepted steps, and at
+    # machine precision its trust region may reject every step and run out of steps
+    # while sitting at the optimum; the gradient test sees through that.
+    r = _residual(y, args)
+    J = jax.jacfwd(_residual)(y, args)
+    cosine = jnp.abs(J.T @ r) / (jnp.linalg.norm(J, axis=0) * jnp.linalg.norm(r) + tiny)
+    stationary = jnp.max(cosine) < gtol
+    stopped = (sol.result == optx.RESULTS.successful) | (
+        sol.result == optx.RESULTS.nonlinear_max_steps_reached
+    )
+    converged = stopped & stationary
     status = jnp.select(
         [jnp.sum(obs.mask) < 3, ~finite, ~in_front, ~converged],
         [

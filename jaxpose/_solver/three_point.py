@@ -194,13 +194,13 @@ def _monic_cubic_roots(a, b, c, tiny):
     return roots, ~one_real
 
 
-class _Candidates(NamedTuple):
-    lam: tuple  # 3-tuple of (4,) depths, in the normalised scale
-    real: Bool[Array, "4"]  # a real solution of the distance equations (any depth sign)
-
-
 def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
-    """The (up to four) depth vectors of the normalised problem, a12 + a13 + a23 = 1."""
+    """The (up to four) depth vectors of the normalised problem, a12 + a13 + a23 = 1.
+
+    Returns four `(lambda, real)` pairs, `lambda` a 3-tuple, `real` whether the candidate
+    is a real solution of the distance equations (any depth sign). Kept as separate
+    scalars (no stacking) so that XLA fuses element-wise without recomputation.
+    """
     tiny = jnp.finfo(eps.dtype).tiny * 1e8
     zero = jnp.zeros_like(c12)
     one = jnp.ones_like(c12)
@@ -273,8 +273,7 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     # the complementary conic restricted there is a homogeneous quadratic.
     d_perp = _sym_comb(g, d1, -d, d2)
     p_hat = _unit(p, tiny)
-    lam = ([], [], [])
-    real = []
+    out = []
     for line in lines:
         v_hat = _unit(_cross(line, p_hat), tiny)
         qa = _sym_quad(d_perp, p_hat, p_hat)
@@ -293,11 +292,8 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
             )
             s = _safe_rsqrt(quad, tiny)
             s = jnp.where(dvec[0] + dvec[1] + dvec[2] < 0, -s, s)
-            for i in range(3):
-                lam[i].append(s * dvec[i])
-            real.append(pair_ok & disc_ok & (quad > tiny))
-    lam = tuple(jnp.stack(x) for x in lam)
-    return _Candidates(lam=lam, real=jnp.stack(real))
+            out.append((_scale(s, dvec), pair_ok & disc_ok & (quad > tiny)))
+    return out
 
 
 def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
@@ -361,16 +357,8 @@ def _p3p_full(bearings, points) -> _P3PFull:
     c12, c13, c23 = _dot(f[0], f[1]), _dot(f[0], f[2]), _dot(f[1], f[2])
 
     sg = jax.lax.stop_gradient
-    cand = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
-    lam, err = _gauss_newton(
-        tuple(sg(x) for x in cand.lam),
-        *(jnp.expand_dims(x, 0) for x in (c12, c13, c23, n12, n13, n23)),
-        tiny,
-    )
-    real = cand.real & (err <= jnp.sqrt(eps))
-    positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
+    cands = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
     scale = _safe_sqrt(total)
-    lam = tuple(scale * x for x in lam)
 
     # Orthonormal frames from two edges, model side and camera side: R = Fy Fx^T.
     def frame(e1, e2):
@@ -379,25 +367,36 @@ def _p3p_full(bearings, points) -> _P3PFull:
         return ex, _cross(ez, ex), ez
 
     fx = frame(x12, x13)
-    f0 = [tuple(jnp.expand_dims(c, 0) for c in fi) for fi in f]
-    p1 = _scale(lam[0], f0[0])
-    y12 = _sub(p1, _scale(lam[1], f0[1]))
-    y13 = _sub(p1, _scale(lam[2], f0[2]))
-    fy = frame(y12, y13)
-    rot = [[sum(fy[k][i] * fx[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-    # t = mean_i (lambda_i f_i - R m_i)
-    trans = []
-    for i in range(3):
-        acc = 0
-        for n in range(3):
-            acc = acc + lam[n] * f0[n][i] - sum(rot[i][j] * m[n][j] for j in range(3))
-        trans.append(acc / 3)
+    rots, transs, reals, valids = [], [], [], []
+    for lam0, real in cands:
+        lam, err = _gauss_newton(
+            tuple(sg(x) for x in lam0), c12, c13, c23, n12, n13, n23, tiny
+        )
+        real = real & (err <= jnp.sqrt(eps))
+        positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
+        lam = _scale(scale, lam)
+        p1 = _scale(lam[0], f[0])
+        fy = frame(_sub(p1, _scale(lam[1], f[1])), _sub(p1, _scale(lam[2], f[2])))
+        rot = [[sum(fy[k][i] * fx[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+        # t = mean_n (lambda_n f_n - R m_n)
+        trans = []
+        for i in range(3):
+            acc = 0
+            for n in range(3):
+                acc = acc + lam[n] * f[n][i] - sum(rot[i][j] * m[n][j] for j in range(3))
+            trans.append(acc / 3)
+        rots.append(rot)
+        transs.append(trans)
+        reals.append(real)
+        valids.append(real & positive)
 
-    R = jnp.stack([jnp.stack(row, axis=-1) for row in rot], axis=-2)  # (4, 3, 3)
-    t = jnp.stack(trans, axis=-1)  # (4, 3)
+    R = jnp.stack([jnp.stack([jnp.stack(row) for row in rot]) for rot in rots])  # (4, 3, 3)
+    t = jnp.stack([jnp.stack(trans) for trans in transs])  # (4, 3)
+    real = jnp.stack(reals)
+    valid = jnp.stack(valids)
     finite = jnp.all(jnp.isfinite(R), axis=(-2, -1)) & jnp.all(jnp.isfinite(t), axis=-1)
     real = real & finite
-    valid = real & positive
+    valid = valid & finite
     R = jnp.where(valid[:, None, None], R, jnp.eye(3, dtype=dtype))
     t = jnp.where(valid[:, None], t, 0)
     return _P3PFull(R=R, t=t, valid=valid, real=real)
