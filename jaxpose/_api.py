@@ -19,7 +19,7 @@ from ._rotation import matrix_to_rotvec
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
 from ._status import Status
-from ._validate import as_camera, as_dist_coeffs, as_intrinsics, as_matching, as_points
+from ._validate import as_dist_coeffs, as_intrinsics, as_matching, as_points
 
 __all__ = ["METHODS", "Solution", "solve", "solve_pnp", "solve_pnp_batch"]
 

@@ -68,20 +68,32 @@ def _cmd_reproduce(args) -> int:
     stats = result.statistics()
     table = Table(title="Table 1: pose error (mm) per method: ours / paper")
     table.add_column("")
-    labels = {"three_point": "3-segment", "nonlinear": "non-linear", "linear": "linear",
-              "mixed": "mixed"}
+    labels = {
+        "three_point": "3-segment",
+        "nonlinear": "non-linear",
+        "linear": "linear",
+        "mixed": "mixed",
+    }
     for m in _experiment.METHOD_NAMES:
         table.add_column(labels[m], justify="right")
-    rows = [("mean", "mean"), ("standard deviation", "std"),
-            ("mean deviation", "mean_deviation"), ("minimum", "min")]
+    rows = [
+        ("mean", "mean"),
+        ("standard deviation", "std"),
+        ("mean deviation", "mean_deviation"),
+        ("minimum", "min"),
+    ]
     for label, key in rows:
-        table.add_row(label, *(
-            f"{stats[m][key]:.3f} / {_experiment.PAPER_TABLE1[m][key]:.3f}"
-            for m in _experiment.METHOD_NAMES
-        ))
-    table.add_row("at the optimum", *(
-        f"{100 * stats[m]['at_optimum']:.2f}%" for m in _experiment.METHOD_NAMES
-    ))
+        table.add_row(
+            label,
+            *(
+                f"{stats[m][key]:.3f} / {_experiment.PAPER_TABLE1[m][key]:.3f}"
+                for m in _experiment.METHOD_NAMES
+            ),
+        )
+    table.add_row(
+        "at the optimum",
+        *(f"{100 * stats[m]['at_optimum']:.2f}%" for m in _experiment.METHOD_NAMES),
+    )
     console.print(table)
     console.print(
         f"optimum pose error {result.optimum:.3f} mm (paper 0.578); mixed at the optimum "
@@ -142,8 +154,9 @@ def _cmd_bench(args) -> int:
         best = None
         for ijk in trip:
             try:
-                n, rvecs, tvecs = cv2.solveP3P(world[ijk], img[ijk], K, None,
-                                               flags=cv2.SOLVEPNP_P3P)
+                n, rvecs, tvecs = cv2.solveP3P(
+                    world[ijk], img[ijk], K, None, flags=cv2.SOLVEPNP_P3P
+                )
             except cv2.error:
                 continue
             for rv, tv in zip(rvecs[:n], tvecs[:n]):
@@ -165,11 +178,15 @@ def _cmd_bench(args) -> int:
     table.add_column("time", justify="right")
     table.add_column("ratio", justify="right")
     table.add_row("jaxpose mixed (compiled)", f"{1e3 * ours:.2f} ms", "1.0x")
-    table.add_row("OpenCV loop (solveP3P, best root, RefineLM)", f"{1e3 * cv:.2f} ms",
-                  f"{cv / ours:.1f}x slower")
+    table.add_row(
+        "OpenCV loop (solveP3P, best root, RefineLM)",
+        f"{1e3 * cv:.2f} ms",
+        f"{cv / ours:.1f}x slower",
+    )
     console.print(table)
-    console.print(f"compile (first call): {compile_s:.1f} s. For the full benchmark suite: "
-                  "`make bench`.")
+    console.print(
+        f"compile (first call): {compile_s:.1f} s. For the full benchmark suite: `make bench`."
+    )
     return 0
 
 
@@ -182,10 +199,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     p = sub.add_parser("reproduce", help="run the paper's experiment on the embedded bench")
     p.add_argument("--seed", type=int, default=0, help="image-noise seed (default 0)")
-    p.add_argument("--noise", type=float, default=None,
-                   help="pixel noise sigma (default: the bench's)")
-    p.add_argument("--threshold", type=float, default=None,
-                   help="mixed acceptance threshold in px (default: adaptive)")
+    p.add_argument(
+        "--noise", type=float, default=None, help="pixel noise sigma (default: the bench's)"
+    )
+    p.add_argument(
+        "--threshold",
+        type=float,
+        default=None,
+        help="mixed acceptance threshold in px (default: adaptive)",
+    )
     p.add_argument("--out", default="results", help="output folder (default ./results)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--float32", action="store_true", help="compute in float32")

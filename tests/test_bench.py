@@ -19,9 +19,7 @@ def test_cross_prism_topology():
     directed = [(f[i], f[(i + 1) % len(f)]) for f in model.faces for i in range(len(f))]
     assert len(directed) == len(set(directed)) == 72
     assert all((b, a) in directed for a, b in directed)
-    assert {tuple(sorted(e)) for e in model.edges.tolist()} == {
-        tuple(sorted(d)) for d in directed
-    }
+    assert {tuple(sorted(e)) for e in model.edges.tolist()} == {tuple(sorted(d)) for d in directed}
 
 
 def test_faces_point_outwards():
@@ -51,8 +49,12 @@ def test_default_bench_matches_the_paper_setup():
     np.testing.assert_allclose(jp.project(b.camera, world), b.clean_points, atol=1e-9)
     residual = b.image_points - b.clean_points
     assert 0.4 < residual.std() < 1.2  # seeded Gaussian noise of b.noise px
+
     def area(i, j, k):
-        (x1, y1), (x2, y2) = b.image_points[j] - b.image_points[i], b.image_points[k] - b.image_points[i]
+        (x1, y1), (x2, y2) = (
+            b.image_points[j] - b.image_points[i],
+            b.image_points[k] - b.image_points[i],
+        )
         return 0.5 * abs(x1 * y2 - x2 * y1)
 
     areas = [area(*ijk) for ijk in itertools.combinations(range(16), 3)]
@@ -63,8 +65,9 @@ def test_bench_is_seeded():
     a, b = jp.default_bench(seed=1), jp.default_bench(seed=1)
     np.testing.assert_array_equal(a.image_points, b.image_points)
     assert not np.allclose(a.image_points, jp.default_bench(seed=2).image_points)
-    np.testing.assert_array_equal(jp.default_bench(noise=0.0).image_points,
-                                  jp.default_bench(noise=0.0).clean_points)
+    np.testing.assert_array_equal(
+        jp.default_bench(noise=0.0).image_points, jp.default_bench(noise=0.0).clean_points
+    )
 
 
 @pytest.mark.parametrize("kind", ["ordinary", "quasi_singular", "planar"])

@@ -126,8 +126,9 @@ def test_methods_on_too_few_points_and_degenerate_data():
 
 def test_float32_methods():
     b = jp.default_bench()
-    obs = jp.observations(*(jnp.asarray(x, jnp.float32)
-                            for x in (b.camera, b.model_points, b.image_points)))
+    obs = jp.observations(
+        *(jnp.asarray(x, jnp.float32) for x in (b.camera, b.model_points, b.image_points))
+    )
     rng = np.random.default_rng(2)
     R0, t0 = _perturbed(b.R, b.t, rng, 3.0, 0.02, 2000.0)
     start = jp.Pose(jnp.asarray(R0, jnp.float32), jnp.asarray(t0, jnp.float32))

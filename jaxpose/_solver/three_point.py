@@ -330,6 +330,7 @@ def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
         l1, l2, l3 = (jnp.where(better, n, o) for n, o in ((n1, l1), (n2, l2), (n3, l3)))
         r = tuple(jnp.where(better, n, o) for n, o in zip(nr, r, strict=True))
         err = jnp.where(better, nerr, err)
+        l1, l2, l3, r, err = _barrier((l1, l2, l3, r, err))
     return (l1, l2, l3), err
 
 
@@ -340,15 +341,22 @@ class _P3PFull(NamedTuple):
     real: Bool[Array, "4"]
 
 
-def _p3p_full(bearings, points) -> _P3PFull:
-    dtype = jnp.promote_types(jnp.result_type(bearings, points), jnp.float32)
-    bearings = jnp.asarray(bearings, dtype)
-    points = jnp.asarray(points, dtype)
+def _rows(x):
+    """A (3, k) array as a 3-tuple of k-tuples of scalars."""
+    return [tuple(x[i, k] for k in range(x.shape[1])) for i in range(3)]
+
+
+def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
+    """P3P on scalar tuples: `f`, `m` three 3-tuples each; `t` is shifted by `offset`.
+
+    All per-slot selection happens on scalars and the outputs are stacked once, at the
+    very end: XLA's CPU fusion emitter recomputes operands of stacked-then-consumed
+    values, which made an earlier layout exponentially slow.
+    """
     eps = jnp.asarray(jnp.finfo(dtype).eps, dtype)
     tiny = jnp.finfo(dtype).tiny * 1e8
 
-    f = [_unit(tuple(bearings[i, k] for k in range(3)), tiny) for i in range(3)]
-    m = [tuple(points[i, k] for k in range(3)) for i in range(3)]
+    f = [_unit(fi, tiny) for fi in f]
     x12, x13, x23 = _sub(m[0], m[1]), _sub(m[0], m[2]), _sub(m[1], m[2])
     a12, a13, a23 = _dot(x12, x12), _dot(x13, x13), _dot(x23, x23)
     total = a12 + a13 + a23
@@ -367,7 +375,7 @@ def _p3p_full(bearings, points) -> _P3PFull:
         return ex, _cross(ez, ex), ez
 
     fx = frame(x12, x13)
-    rots, transs, reals, valids = [], [], [], []
+    r_out, t_out, valids, reals = [], [], [], []
     for lam0, real in cands:
         lam, err = _gauss_newton(
             tuple(sg(x) for x in lam0), c12, c13, c23, n12, n13, n23, tiny
@@ -377,29 +385,29 @@ def _p3p_full(bearings, points) -> _P3PFull:
         lam = _scale(scale, lam)
         p1 = _scale(lam[0], f[0])
         fy = frame(_sub(p1, _scale(lam[1], f[1])), _sub(p1, _scale(lam[2], f[2])))
-        rot = [[sum(fy[k][i] * fx[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-        # t = mean_n (lambda_n f_n - R m_n)
+        rot = [sum(fy[k][i] * fx[k][j] for k in range(3)) for i in range(3) for j in range(3)]
+        # t = mean_n (lambda_n f_n - R m_n) + offset
         trans = []
         for i in range(3):
             acc = 0
             for n in range(3):
-                acc = acc + lam[n] * f[n][i] - sum(rot[i][j] * m[n][j] for j in range(3))
-            trans.append(acc / 3)
-        rots.append(rot)
-        transs.append(trans)
+                acc = acc + lam[n] * f[n][i] - sum(rot[3 * i + j] * m[n][j] for j in range(3))
+            trans.append(acc / 3 + offset[i])
+        finite = jnp.isfinite(sum(rot) + sum(trans))
+        real = real & finite
+        valid = real & positive & usable
+        eye = (1, 0, 0, 0, 1, 0, 0, 0, 1)
+        r_out += [jnp.where(valid, x, e) for x, e in zip(rot, eye, strict=True)]
+        t_out += [jnp.where(valid, x, 0) for x in trans]
+        valids.append(valid)
         reals.append(real)
-        valids.append(real & positive)
 
-    R = jnp.stack([jnp.stack([jnp.stack(row) for row in rot]) for rot in rots])  # (4, 3, 3)
-    t = jnp.stack([jnp.stack(trans) for trans in transs])  # (4, 3)
-    real = jnp.stack(reals)
-    valid = jnp.stack(valids)
-    finite = jnp.all(jnp.isfinite(R), axis=(-2, -1)) & jnp.all(jnp.isfinite(t), axis=-1)
-    real = real & finite
-    valid = valid & finite
-    R = jnp.where(valid[:, None, None], R, jnp.eye(3, dtype=dtype))
-    t = jnp.where(valid[:, None], t, 0)
-    return _P3PFull(R=R, t=t, valid=valid, real=real)
+    return _P3PFull(
+        R=jnp.stack(r_out).reshape(4, 3, 3).astype(dtype),
+        t=jnp.stack(t_out).reshape(4, 3).astype(dtype),
+        valid=jnp.stack(valids),
+        real=jnp.stack(reals),
+    )
 
 
 def p3p(
@@ -417,7 +425,11 @@ def p3p(
     `valid` `(4,)` bool. Invalid slots hold the identity and zeros: never NaN. One problem
     at a time; `jax.vmap` it for many.
     """
-    out = _p3p_full(bearings, points)
+    dtype = jnp.promote_types(jnp.result_type(bearings, points), jnp.float32)
+    bearings = jnp.asarray(bearings, dtype)
+    points = jnp.asarray(points, dtype)
+    zero = jnp.zeros((), dtype)
+    out = _p3p_full(_rows(bearings), _rows(points), (zero, zero, zero), True, dtype)
     return out.R, out.t, out.valid
 
 
@@ -485,7 +497,7 @@ def three_point(
     image_ok = area_img >= min_area
 
     # Model collinearity: area / longest edge^2.
-    m = [tuple(model[i, k] for k in range(3)) for i in range(3)]
+    m = _rows(model)
     x12, x13, x23 = _sub(m[1], m[0]), _sub(m[2], m[0]), _sub(m[2], m[1])
     cr = _cross(x12, x13)
     area_model = _safe_sqrt(_dot(cr, cr)) / 2
@@ -505,15 +517,12 @@ def three_point(
 
     centre = _scale(-_safe_div(1, det, tiny), adj_mul(c4))
     one = jnp.ones((), dtype)
-    rows = [jnp.stack(adj_mul((image[i, 0], image[i, 1], one))) for i in range(3)]
-    bearings = jnp.stack(rows)
+    bearings = [adj_mul((image[i, 0], image[i, 1], one)) for i in range(3)]
     camera_ok = jnp.abs(det) > tiny
 
-    sol = _p3p_full(bearings, model)
     usable = finite & image_ok & model_ok & camera_ok
-    valid = sol.valid & usable
-    R = jnp.where(valid[:, None, None], sol.R, jnp.eye(3, dtype=dtype))
-    t = jnp.where(valid[:, None], sol.t + jnp.stack(centre), 0)
+    sol = _p3p_full(bearings, m, centre, usable, dtype)
+    R, t, valid = sol.R, sol.t, sol.valid
 
     status = jnp.where(
         jnp.any(valid),
