@@ -61,9 +61,9 @@ from ._solver.linear import LinearResult as LinearResult
 from ._solver.linear import linear as linear
 from ._solver.nonlinear import NonlinearResult as NonlinearResult
 from ._solver.nonlinear import nonlinear as nonlinear
-from ._solver.three_point import ThreePointResult as ThreePointResult
-from ._solver.three_point import p3p as p3p
-from ._solver.three_point import three_point as three_point
+from ._solver.p3p import ThreePointResult as ThreePointResult
+from ._solver.p3p import p3p as p3p
+from ._solver.p3p import three_point as three_point
 from ._status import Status as Status
 from ._status import describe as describe
 

@@ -40,7 +40,7 @@ from ._pose import Observations, Pose, transform
 from ._residuals import pixel_residuals, rms
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
-from ._solver.three_point import three_point
+from ._solver.p3p import three_point
 from ._status import Status
 
 __all__ = [

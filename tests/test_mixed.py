@@ -104,3 +104,26 @@ def test_collinear_problem_is_reported_not_solved():
     assert int(sol.status) in (jp.Status.DEGENERATE_MODEL, jp.Status.DEGENERATE_IMAGE)
     for leaf in jax.tree.leaves(sol):
         assert np.all(np.isfinite(leaf))
+
+
+def test_reproduce_command(tmp_path, capsys, experiments):
+    from jaxpose._cli import main
+
+    assert main(["reproduce", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "Table 1" in out and "at the optimum" in out
+    import json
+
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert data["counts"]["triplets"] == 560
+    assert data["statistics"]["mixed"]["at_optimum"] >= 0.999
+    for name in ("figure3_histogram.png", "figure4_cumulative.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    from jaxpose._cli import main
+
+    assert main(["reproduce", "--noise", "-1", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "--noise" in err

@@ -1,0 +1,314 @@
+r"""The three-point method (SPEC 3.1): perspective-three-point, all real solutions.
+
+Given unit bearings $f_i$ and model points $m_i$ ($i = 1, 2, 3$), find every pose with
+$\lambda_i f_i = R m_i + t$, $\lambda_i > 0$. The depths satisfy the three law-of-cosines
+equations (Grunert)
+
+$$ \lambda_i^2 + \lambda_j^2 - 2 b_{ij} \lambda_i \lambda_j = a_{ij}, \qquad
+   b_{ij} = f_i \cdot f_j, \quad a_{ij} = |m_i - m_j|^2, $$
+
+i.e. $\Lambda^T M_{ij} \Lambda = a_{ij}$. Eliminating the scale gives two homogeneous
+conics $D_1 = a_{23} M_{12} - a_{12} M_{23}$ and $D_2 = a_{23} M_{13} - a_{13} M_{23}$
+whose (up to four) common points are the solutions. Following Lambda Twist (Persson &
+Nordberg, ECCV 2018), one *degenerate* member of their pencil is found from the cubic
+$\det(D_1 + \gamma D_2) = 0$ (closed form, then Newton-polished); it is a pair of planes
+through the origin, split here without an eigen-solver: if $D_0 = l m^T + m l^T$ then
+$\operatorname{adj}(D_0) = -(l \times m)(l \times m)^T$ and $D_0 + [l \times m]_\times
+= 2 l m^T$ has rank one. Each plane meets the pencil's member "orthogonal" to $D_0$ in
+two lines (a 2x2 quadratic form), giving four candidate depth vectors, scaled by the sum
+of the three equations and polished by three Gauss-Newton steps on them. The pose
+follows from orthonormal frames built on two edges of each triangle.
+
+Of the cubic's three roots the most indefinite member is used (the most negative product
+of its two non-zero eigenvalues, read from the adjugate's trace): it is always a real
+pair of planes, even when two of the four intersections are complex.
+
+Everything is fixed-shape, elementwise or 3x3 algebra: under `jax.vmap` it becomes wide
+vector kernels. Measured on 2e4 random noise-free instances in float64 (see
+`benchmarks/p3p_rate.py`): the true pose is among the valid solutions in 100% of them,
+99.9th-percentile error 2.5e-11.
+
+`three_point` wraps it for the paper's setting: a camera matrix calibrated in the world
+frame, pixel measurements, and the degeneracy tests of SPEC 3.1, each with a status.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._camera import backproject, normalize_camera
+from .._status import Status
+
+__all__ = ["ThreePointResult", "p3p", "three_point"]
+
+
+def _safe_sqrt(x):
+    ok = x > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
+
+
+def _safe_div(num, den):
+    ok = den != 0
+    return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
+
+
+def _unit(v):
+    return v * _safe_div(1, _safe_sqrt(jnp.sum(v * v, axis=-1, keepdims=True)))
+
+
+def _det3(A):
+    return A[0] @ jnp.cross(A[1], A[2])
+
+
+def _adj3(A):
+    """Adjugate of a 3x3 matrix (`A @ adj(A) = det(A) I`), division-free."""
+    a0, a1, a2 = A[0], A[1], A[2]
+    return jnp.stack([jnp.cross(a1, a2), jnp.cross(a2, a0), jnp.cross(a0, a1)], axis=1)
+
+
+def _skew(p):
+    z = jnp.zeros_like(p[0])
+    return jnp.stack(
+        [jnp.stack([z, -p[2], p[1]]), jnp.stack([p[2], z, -p[0]]), jnp.stack([-p[1], p[0], z])]
+    )
+
+
+def _cubic_roots(a, b, c):
+    """Real roots of `x^3 + a x^2 + b x + c`, shape (3,): all three when real, else the
+    single real root three times. Closed form (trigonometric / Cardano without
+    cancellation), then two guarded Newton steps."""
+    p = b - a * a / 3
+    q = 2 * a**3 / 27 - a * b / 3 + c
+    disc = (q / 2) ** 2 + (p / 3) ** 3
+    three = disc < 0
+    m = _safe_sqrt(-p / 3)
+    arg = jnp.clip(jnp.where(three, _safe_div(-q / 2, m**3), 0), -1, 1)
+    phi = jnp.arccos(arg) / 3
+    k = jnp.arange(3, dtype=a.dtype)
+    trig = 2 * m * jnp.cos(phi - 2 * jnp.pi * k / 3)
+    s = _safe_sqrt(disc)
+    u = jnp.cbrt(-q / 2 + jnp.where(q <= 0, s, -s))
+    one = u - _safe_div(p, 3 * u)
+    x = jnp.where(three, trig, one) - a / 3
+
+    def f(x):
+        return ((x + a) * x + b) * x + c
+
+    for _ in range(2):
+        fx = f(x)
+        xn = x - _safe_div(fx, (3 * x + 2 * a) * x + b)
+        x = jnp.where(jnp.abs(f(xn)) < jnp.abs(fx), xn, x)
+    return x
+
+
+class _Candidates(NamedTuple):
+    R: Float[Array, "4 3 3"]
+    t: Float[Array, "4 3"]
+    real: Bool[Array, 4]
+    positive: Bool[Array, 4]
+
+
+def _p3p(bearings, points) -> _Candidates:
+    dtype = jnp.result_type(bearings, points, jnp.float32)
+    y = _unit(jnp.asarray(bearings, dtype))
+    x = jnp.asarray(points, dtype)
+    d12, d13, d23 = x[0] - x[1], x[0] - x[2], x[1] - x[2]
+    a = jnp.stack([d12 @ d12, d13 @ d13, d23 @ d23])
+    total = jnp.sum(a)
+    a12, a13, a23 = a * _safe_div(1, total)  # scale-free
+    b12, b13, b23 = y[0] @ y[1], y[0] @ y[2], y[1] @ y[2]
+    z, o = jnp.zeros((), dtype), jnp.ones((), dtype)
+    M12 = jnp.stack([jnp.stack([o, -b12, z]), jnp.stack([-b12, o, z]), jnp.stack([z, z, z])])
+    M13 = jnp.stack([jnp.stack([o, z, -b13]), jnp.stack([z, z, z]), jnp.stack([-b13, z, o])])
+    M23 = jnp.stack([jnp.stack([z, z, z]), jnp.stack([z, o, -b23]), jnp.stack([z, -b23, o])])
+    D1 = a23 * M12 - a12 * M23
+    D2 = a23 * M13 - a13 * M23
+
+    # det(D1 + g D2) = c0 + c1 g + c2 g^2 + c3 g^3; solve for g or for 1/g, whichever
+    # has the larger leading coefficient.
+    c0, c3 = _det3(D1), _det3(D2)
+    c1, c2 = jnp.trace(_adj3(D1) @ D2), jnp.trace(D1 @ _adj3(D2))
+    flip = jnp.abs(c3) < jnp.abs(c0)
+    lead = jnp.where(flip, c0, c3)
+    lead = jnp.where(lead != 0, lead, jnp.finfo(dtype).tiny)
+    r = _cubic_roots(
+        jnp.where(flip, c1, c2) / lead,
+        jnp.where(flip, c2, c1) / lead,
+        jnp.where(flip, c3, c0) / lead,
+    )
+    alpha, beta = jnp.where(flip, r, 1), jnp.where(flip, 1, r)
+    norm = jnp.sqrt(alpha**2 + beta**2)
+    alpha, beta = alpha / norm, beta / norm
+    members = alpha[:, None, None] * D1[None] + beta[:, None, None] * D2[None]
+    indefiniteness = jax.vmap(lambda D: jnp.trace(_adj3(D)) * _safe_div(1, jnp.sum(D * D)))
+    best = jnp.argmin(indefiniteness(members))
+    D0 = members[best]
+    E = -beta[best] * D1 + alpha[best] * D2  # the pencil member orthogonal to D0
+
+    # Split D0 into its two planes (see the module docstring).
+    adj = _adj3(D0)
+    k = jnp.argmin(jnp.diagonal(adj))
+    akk = adj[k, k]
+    indefinite = akk < 0
+    A = D0 + _skew(adj[:, k] * _safe_div(1, _safe_sqrt(-akk)))
+    ij = jnp.argmax(jnp.abs(A).reshape(-1))
+    normals = jnp.stack([A[:, ij % 3], A[ij // 3, :]])
+    Msum = M12 + M13 + M23
+
+    def on_plane(n):
+        n = _unit(n)
+        e = jnp.eye(3, dtype=dtype)[jnp.argmin(jnp.abs(n))]
+        u = _unit(jnp.cross(n, e))
+        v = jnp.cross(n, u)
+        g11, g12, g22 = u @ E @ u, u @ E @ v, v @ E @ v
+        disc = g12 * g12 - g11 * g22
+        sq = _safe_sqrt(disc)
+        r1 = -g12 - jnp.where(g12 >= 0, sq, -sq)
+        dirs = jnp.stack([r1 * u + g11 * v, g22 * u + r1 * v])
+        q = jnp.einsum("ki,ij,kj->k", dirs, Msum, dirs)
+        lam = dirs * _safe_sqrt(_safe_div(1, q))[:, None]
+        lam = jnp.where(jnp.sum(lam, axis=1, keepdims=True) < 0, -lam, lam)
+        return lam, jnp.broadcast_to((disc >= 0) & indefinite, (2,))
+
+    lam, real = jax.vmap(on_plane)(normals)
+    lam, real = lam.reshape(4, 3), real.reshape(4)
+
+    def residual(L):
+        return jnp.stack(
+            [
+                L[0] ** 2 + L[1] ** 2 - 2 * b12 * L[0] * L[1] - a12,
+                L[0] ** 2 + L[2] ** 2 - 2 * b13 * L[0] * L[2] - a13,
+                L[1] ** 2 + L[2] ** 2 - 2 * b23 * L[1] * L[2] - a23,
+            ]
+        )
+
+    def polish(L):
+        for _ in range(3):
+            f = residual(L)
+            J = jnp.stack(
+                [
+                    jnp.stack([2 * (L[0] - b12 * L[1]), 2 * (L[1] - b12 * L[0]), z]),
+                    jnp.stack([2 * (L[0] - b13 * L[2]), z, 2 * (L[2] - b13 * L[0])]),
+                    jnp.stack([z, 2 * (L[1] - b23 * L[2]), 2 * (L[2] - b23 * L[1])]),
+                ]
+            )
+            adjJ = _adj3(J)
+            step = adjJ @ f * _safe_div(1, J[0] @ adjJ[:, 0])
+            Ln = L - step
+            L = jnp.where(jnp.max(jnp.abs(residual(Ln))) < jnp.max(jnp.abs(f)), Ln, L)
+        return L, jnp.max(jnp.abs(residual(L)))
+
+    lam, err = jax.vmap(polish)(lam)
+    tol = 1e-6 if jnp.finfo(dtype).bits >= 64 else 1e-3
+    real = real & (err < tol)
+    lam = lam * _safe_sqrt(total)
+    positive = jnp.all(lam > 0, axis=1)
+
+    def frame(e1, e2):
+        ex = _unit(e1)
+        ez = _unit(jnp.cross(e1, e2))
+        return jnp.stack([ex, jnp.cross(ez, ex), ez], axis=1)
+
+    Fx = frame(d12, d13)
+
+    def pose(L):
+        P = L[:, None] * y
+        R = frame(P[0] - P[1], P[0] - P[2]) @ Fx.T
+        return R, jnp.mean(P - x @ R.T, axis=0)
+
+    R, t = jax.vmap(pose)(lam)
+    finite = jnp.all(jnp.isfinite(R), axis=(1, 2)) & jnp.all(jnp.isfinite(t), axis=1)
+    real = real & finite
+    return _Candidates(R, t, real, positive)
+
+
+def p3p(bearings: Float[Array, "3 3"], points: Float[Array, "3 3"]):
+    r"""Every pose with $\lambda_i f_i = R m_i + t$, $\lambda_i > 0$ (module docstring).
+
+    **Arguments:**
+    - `bearings`: `(3, 3)`, row `i` the direction `f_i` towards point `i` (normalised here).
+    - `points`: `(3, 3)`, row `i` the model point `m_i`.
+
+    **Returns:** `(R, t, valid)`, shapes `(4, 3, 3)`, `(4, 3)`, `(4,)`. Invalid slots hold
+    the identity and zeros: never NaN. One problem; `jax.vmap` it for many.
+    """
+    c = _p3p(bearings, points)
+    valid = c.real & c.positive
+    dtype = c.R.dtype
+    R = jnp.where(valid[:, None, None], c.R, jnp.eye(3, dtype=dtype)[None])
+    t = jnp.where(valid[:, None], c.t, 0)
+    return R, t, valid
+
+
+class ThreePointResult(NamedTuple):
+    """**Fields:** `R` `(4, 3, 3)` and `t` `(4, 3)`: candidate poses mapping model to world
+    (`p = R m + t`); `valid` `(4,)`; `status`: `OK`, `DEGENERATE_IMAGE`,
+    `DEGENERATE_MODEL`, `NO_SOLUTION`, `BEHIND_CAMERA` or `NOT_FINITE`."""
+
+    R: Float[Array, "4 3 3"]
+    t: Float[Array, "4 3"]
+    valid: Bool[Array, 4]
+    status: Int[Array, ""]
+
+
+def _triangle_area(a, b, c):
+    """Area of a triangle in 2D or 3D (half the cross product's norm)."""
+    u, v = b - a, c - a
+    if u.shape[-1] == 2:
+        return 0.5 * jnp.abs(u[0] * v[1] - u[1] * v[0])
+    return 0.5 * _safe_sqrt(jnp.sum(jnp.cross(u, v) ** 2))
+
+
+def three_point(
+    camera: Float[Array, "3 4"],
+    model: Float[Array, "3 3"],
+    image: Float[Array, "3 2"],
+    *,
+    min_area: float = 40.0,
+    collinear_tol: float = 1e-3,
+) -> ThreePointResult:
+    """The three-point method in the world frame, with the degeneracy tests of SPEC 3.1.
+
+    **Arguments:**
+    - `camera`: `C` `(3, 4)`, calibrated in the world frame (any scale or sign).
+    - `model`: `(3, 3)` model points; `image`: `(3, 2)` their pixels.
+    - `min_area`: image-triangle area (px^2) below which the points count as aligned
+      (the paper: 40).
+    - `collinear_tol`: model-triangle area over its longest edge squared below which the
+      model points count as collinear (scale-free; an equilateral triangle has 0.43).
+
+    **Returns:** a `ThreePointResult`: up to four poses `p = R m + t` with a mask.
+    """
+    C = normalize_camera(camera)
+    dtype = C.dtype
+    model = jnp.asarray(model, dtype)
+    image = jnp.asarray(image, dtype)
+    centre, directions = backproject(C, image)
+    c = _p3p(directions, model)
+    t = c.t + centre[None, :]
+    area = _triangle_area(image[0], image[1], image[2])
+    edges = jnp.stack([model[0] - model[1], model[0] - model[2], model[1] - model[2]])
+    longest = jnp.max(jnp.sum(edges**2, axis=1))
+    shape = _safe_div(_triangle_area(model[0], model[1], model[2]), longest)
+    finite = jnp.all(jnp.isfinite(C)) & jnp.all(jnp.isfinite(model)) & jnp.all(jnp.isfinite(image))
+    degenerate_image = ~(area >= min_area)
+    degenerate_model = ~(shape >= collinear_tol)
+    valid = c.real & c.positive & finite & ~degenerate_image & ~degenerate_model
+    status = jnp.select(
+        [~finite, degenerate_image, degenerate_model, ~jnp.any(c.real), ~jnp.any(valid)],
+        [
+            Status.NOT_FINITE,
+            Status.DEGENERATE_IMAGE,
+            Status.DEGENERATE_MODEL,
+            Status.NO_SOLUTION,
+            Status.BEHIND_CAMERA,
+        ],
+        Status.OK,
+    ).astype(jnp.int32)
+    R = jnp.where(valid[:, None, None], c.R, jnp.eye(3, dtype=dtype)[None])
+    t = jnp.where(valid[:, None], t, 0)
+    return ThreePointResult(R, t, valid, status)
