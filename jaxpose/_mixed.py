@@ -23,6 +23,12 @@ in need of it (not accepted, lowest error first) are gathered into a fixed-size 
 refined, and scattered back. Triplets that needed LM but did not fit are marked
 `NOT_ATTEMPTED`. `nonlinear_budget=None` refines every triplet that needs it (the
 paper's experiment does).
+
+Beyond the paper, a second chance: the best root by error can be a wrong root whose basin
+is a local minimum (on the bench, one triplet's best root is 120 degrees from the truth and
+every method ends at 18 px). Triplets that fail steps 2-4 run them again from their
+second-best root (`second_chance_budget` of them, in a buffer); `MixedResult.root` says
+which root an accepted pose came from.
 """
 
 from __future__ import annotations
@@ -64,12 +70,15 @@ class Initial(NamedTuple):
     """Step 1 for every triplet: the best three-point root by Eq. 8 over all matches.
 
     **Fields:** `pose` (batched `(T,)`), `error` `(T,)` px, `status` `(T,)`
-    (`OK` or why the triplet gave no pose), `triplets` `(T, 3)`."""
+    (`OK` or why the triplet gave no pose), `triplets` `(T, 3)`; `alt_pose`, `alt_error`:
+    the second-best valid root (error `finfo.max` when there is none)."""
 
     pose: Pose
     error: Float[Array, " T"]
     status: Int[Array, " T"]
     triplets: Int[Array, "T 3"]
+    alt_pose: Pose
+    alt_error: Float[Array, " T"]
 
 
 class MixedResult(NamedTuple):
@@ -83,6 +92,8 @@ class MixedResult(NamedTuple):
     - `initial`: step 1 (`Initial`).
     - `linear_pose`, `linear_error`, `linear_status`: step 2.
     - `threshold`: the acceptance threshold used (px).
+    - `root`: which three-point root the accepted pose came from (0: the best by error;
+      1: the second-best, after the first led to a local minimum).
     """
 
     pose: Pose
@@ -93,6 +104,7 @@ class MixedResult(NamedTuple):
     linear_error: Float[Array, " T"]
     linear_status: Int[Array, " T"]
     threshold: Float[Array, ""]
+    root: Int[Array, " T"]
 
 
 def _errors(poses: Pose, obs: Observations):
@@ -125,24 +137,42 @@ def initial_poses(
             min_area=min_area,
             collinear_tol=collinear_tol,
         )
-        err = _errors(Pose(sol.R, sol.t), obs)
-        err = jnp.where(sol.valid, err, big)
-        best = jnp.argmin(err)
+        err = jnp.where(sol.valid, _errors(Pose(sol.R, sol.t), obs), big)
+        order = jnp.argsort(err)
+        best, second = order[0], order[1]
         used = jnp.all(obs.mask[ijk])
         status = jnp.where(used, sol.status, Status.TOO_FEW_POINTS).astype(jnp.int32)
-        status = jnp.where((status == Status.OK) & ~jnp.any(sol.valid), Status.NO_SOLUTION, status)
         ok = status == Status.OK
-        pose = Pose(
-            jnp.where(ok, sol.R[best], jnp.eye(3, dtype=dtype)), jnp.where(ok, sol.t[best], 0)
-        )
-        return pose, jnp.where(ok, err[best], big), status
+        alt_ok = ok & (err[second] < big)
+        eye = jnp.eye(3, dtype=dtype)
+        pose = Pose(jnp.where(ok, sol.R[best], eye), jnp.where(ok, sol.t[best], 0))
+        alt = Pose(jnp.where(alt_ok, sol.R[second], eye), jnp.where(alt_ok, sol.t[second], 0))
+        return pose, jnp.where(ok, err[best], big), status, alt, jnp.where(alt_ok, err[second], big)
 
-    pose, error, status = jax.vmap(one)(jnp.asarray(idx))
-    return Initial(pose, error, status, jnp.asarray(idx))
+    pose, error, status, alt, alt_error = jax.vmap(one)(jnp.asarray(idx))
+    return Initial(pose, error, status, jnp.asarray(idx), alt, alt_error)
 
 
 def _where_pose(pred, a: Pose, b: Pose) -> Pose:
     return Pose(jnp.where(pred[:, None, None], a.R, b.R), jnp.where(pred[:, None], a.t, b.t))
+
+
+def _buffered(fn, need, priority, k, *args):
+    """Run `fn` (one element -> pytree) on at most `k` elements where `need` holds, the
+    lowest `priority` first, in a fixed-size buffer; scatter the results back.
+
+    Returns `(results, in_buffer)`; rows outside the buffer hold the results of element 0
+    of the buffer (callers mask them with `in_buffer`)."""
+    T = need.shape[0]
+    big = jnp.finfo(priority.dtype).max
+    if k >= T:
+        slots = jnp.arange(T)
+    else:
+        _, slots = jax.lax.top_k(-jnp.where(need, priority, big), k)
+    out = jax.vmap(fn)(*(jax.tree.map(lambda x: x[slots], a) for a in args))
+    where = jnp.zeros(T, jnp.int32).at[slots].set(jnp.arange(slots.shape[0], dtype=jnp.int32))
+    in_buffer = jnp.zeros(T, dtype=bool).at[slots].set(True) & need
+    return jax.tree.map(lambda x: x[where], out), in_buffer
 
 
 def mixed_from_initial(
@@ -153,6 +183,7 @@ def mixed_from_initial(
     rel_threshold: float = 0.01,
     linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
+    second_chance_budget: int = 8,
     max_steps: int = 50,
 ) -> MixedResult:
     """Steps 2-4 of the mixed algorithm for every triplet, from step 1's poses."""
@@ -161,63 +192,77 @@ def mixed_from_initial(
     T = initial.error.shape[0]
     usable = initial.status == Status.OK
 
-    run_linear = jax.vmap(lambda R, t: linear(obs, Pose(R, t), iterations=linear_iterations))
-    lin = run_linear(initial.pose.R, initial.pose.t)
+    def run_linear(pose):
+        return linear(obs, pose, iterations=linear_iterations)
+
+    # Step 2 for every triplet.
+    lin = jax.vmap(run_linear)(initial.pose)
     lin_ok = usable & (lin.status == Status.OK)
     if threshold is None:
         best = jnp.min(jnp.where(lin_ok, lin.error, big))
         thr = jnp.where(best < big, best * (1 + rel_threshold), big)
     else:
         thr = jnp.asarray(threshold, dtype)
+
+    def after_linear(start: Pose, res):
+        """Steps 3-4 after a linear run `res` from `start`: (pose, error, status)."""
+        accepted = (res.status == Status.OK) & (res.error < thr)
+        better = (res.error < _errors(Pose(start.R[None], start.t[None]), obs)[0]) & (
+            res.status != Status.NOT_FINITE
+        )
+        lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
+        nl = nonlinear(obs, lm_start, max_steps=max_steps)
+        again = run_linear(nl.pose)
+        accepted4 = (nl.status == Status.OK) & (again.status == Status.OK) & (again.error < thr)
+        status = jnp.select(
+            [accepted, accepted4, nl.status != Status.OK],
+            [
+                Status.ACCEPTED_LINEAR,
+                Status.ACCEPTED_AFTER_NONLINEAR,
+                Status.NONLINEAR_NOT_CONVERGED,
+            ],
+            Status.REJECTED,
+        )
+        use_again = ~accepted & (again.error < res.error)
+        pose = jax.tree.map(lambda a, b: jnp.where(use_again, a, b), again.pose, res.pose)
+        return pose, jnp.where(use_again, again.error, res.error), status.astype(jnp.int32)
+
     accepted2 = lin_ok & (lin.error < thr)
     need = usable & ~accepted2
-
-    # Step 3 on a fixed-size buffer: the triplets that need it, lowest error first.
     k = T if nonlinear_budget is None else max(1, min(int(nonlinear_budget), T))
-    start = _where_pose(
-        (lin.error < initial.error) & (lin.status != Status.NOT_FINITE), lin.pose, initial.pose
+    (pose3, error3, status3), in_buffer = _buffered(
+        after_linear, need, jnp.minimum(lin.error, initial.error), k, initial.pose, lin
     )
-    start_error = jnp.minimum(lin.error, initial.error)
-    if k == T:
-        slots = jnp.arange(T)
-    else:
-        _, slots = jax.lax.top_k(-jnp.where(need, start_error, big), k)
-    in_buffer = jnp.zeros(T, dtype=bool).at[slots].set(True) & need
-
-    def refine(R, t):
-        nl = nonlinear(obs, Pose(R, t), max_steps=max_steps)
-        again = linear(obs, nl.pose, iterations=linear_iterations)
-        return nl.status, again
-
-    nl_status, again = jax.vmap(refine)(start.R[slots], start.t[slots])
-    # Scatter back into full-size arrays (slots are unique).
-    nl_status_all = jnp.full(T, Status.NOT_ATTEMPTED, jnp.int32).at[slots].set(nl_status)
-    again_pose = Pose(
-        initial.pose.R.at[slots].set(again.pose.R), initial.pose.t.at[slots].set(again.pose.t)
-    )
-    again_error = jnp.full(T, big, dtype).at[slots].set(again.error)
-    again_status = jnp.full(T, Status.NOT_ATTEMPTED, jnp.int32).at[slots].set(again.status)
-
-    nl_ok = in_buffer & (nl_status_all == Status.OK)
-    accepted4 = nl_ok & (again_status == Status.OK) & (again_error < thr)
     status = jnp.select(
-        [~usable, accepted2, accepted4, need & ~in_buffer, in_buffer & ~nl_ok],
-        [
-            initial.status,
-            Status.ACCEPTED_LINEAR,
-            Status.ACCEPTED_AFTER_NONLINEAR,
-            Status.NOT_ATTEMPTED,
-            Status.NONLINEAR_NOT_CONVERGED,
-        ],
-        Status.REJECTED,
+        [~usable, accepted2, in_buffer, need],
+        [initial.status, Status.ACCEPTED_LINEAR, status3, Status.NOT_ATTEMPTED],
+        Status.OK,
     ).astype(jnp.int32)
-    # Final pose: accepted pose, else the lowest-error pose the triplet reached.
-    use_again = in_buffer & (again_error < jnp.where(accepted2, -1, lin.error))
-    pose = _where_pose(use_again, again_pose, lin.pose)
-    error = jnp.where(use_again, again_error, lin.error)
+    pose = _where_pose(in_buffer, pose3, lin.pose)
+    error = jnp.where(in_buffer, error3, lin.error)
+
+    # Second chance: a triplet whose best root led to a local minimum (rejected, or LM
+    # failed) starts over from its second-best root, in a small buffer.
+    root = jnp.zeros(T, jnp.int32)
+    if second_chance_budget > 0:
+        failed = in_buffer & ~Status.is_success(status) & (initial.alt_error < big)
+
+        def from_root(start: Pose):
+            return after_linear(start, run_linear(start))
+
+        k2 = max(1, min(int(second_chance_budget), T))
+        (pose_b, error_b, status_b), retried = _buffered(
+            from_root, failed, initial.alt_error, k2, initial.alt_pose
+        )
+        won = retried & Status.is_success(status_b)
+        status = jnp.where(won, status_b, status)
+        pose = _where_pose(won, pose_b, pose)
+        error = jnp.where(won, error_b, error)
+        root = jnp.where(won, 1, root)
+
     pose = _where_pose(usable, pose, initial.pose)
     error = jnp.where(usable, error, big)
-    return MixedResult(pose, error, status, initial, lin.pose, lin.error, lin.status, thr)
+    return MixedResult(pose, error, status, initial, lin.pose, lin.error, lin.status, thr, root)
 
 
 def mixed(
@@ -229,6 +274,7 @@ def mixed(
     collinear_tol: float = 1e-3,
     linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
+    second_chance_budget: int = 8,
     max_steps: int = 50,
     triplets: np.ndarray | None = None,
 ) -> MixedResult:
@@ -242,6 +288,7 @@ def mixed(
     - `collinear_tol`: model-triangle collinearity tolerance (scale-free).
     - `linear_iterations`: steps of each linear run.
     - `nonlinear_budget`: most triplets sent to Levenberg-Marquardt (`None`: all).
+    - `second_chance_budget`: most failed triplets retried from their second root.
     - `max_steps`: Levenberg-Marquardt's iteration budget.
     - `triplets`: `(T, 3)` index triplets to use (default: all `C(n, 3)`).
 
@@ -255,6 +302,7 @@ def mixed(
         rel_threshold=rel_threshold,
         linear_iterations=linear_iterations,
         nonlinear_budget=nonlinear_budget,
+        second_chance_budget=second_chance_budget,
         max_steps=max_steps,
     )
 

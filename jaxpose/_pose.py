@@ -19,7 +19,7 @@ class Pose(NamedTuple):
     """
 
     R: Float[Array, "3 3"]
-    t: Float[Array, 3]
+    t: Float[Array, " 3"]
 
     @classmethod
     def identity(cls, dtype=jnp.float64) -> Pose:

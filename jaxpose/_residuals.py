@@ -70,14 +70,14 @@ def rms(residuals: Float[Array, "n 2"], mask) -> Float[Array, ""]:
 
 
 @jax.jit
-def rotvec_residual(params: Float[Array, 6], obs: Observations) -> Float[Array, " 2n"]:
+def rotvec_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " 2n"]:
     """Pixel residuals of the pose `R = Rot(params[:3])` (rotation vector), `t = params[3:]`."""
     world = obs.model @ rotvec_to_matrix(params[:3]).T + params[None, 3:]
     return pixel_residuals(world, obs).reshape(-1)
 
 
 @jax.jit
-def quaternion_residual(params: Float[Array, 6], obs: Observations) -> Float[Array, " 2n"]:
+def quaternion_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " 2n"]:
     """Pixel residuals of the pose `R = R(q0, q1, q2, q3)` with `(q1, q2, q3) = params[:3]`
     and `q0 = sqrt(1 - |q|^2)` (the paper's non-linear parameterisation), `t = params[3:]`."""
     world = obs.model @ quaternion_vector_to_matrix(params[:3]).T + params[None, 3:]
@@ -85,7 +85,7 @@ def quaternion_residual(params: Float[Array, 6], obs: Observations) -> Float[Arr
 
 
 @jax.jit
-def ray_residual(params: Float[Array, 6], obs: Observations) -> Float[Array, " 2n"]:
+def ray_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " 2n"]:
     """Eq. 10: the visual-ray plane residuals `n_k . (Rot(r) m + t) + a_k`, `params = (r, t)`.
 
     Equal to the pixel residual times the depth: the paper's linear method zeroes the

@@ -37,10 +37,14 @@ def test_mixed_reaches_the_optimum(experiments):
         for m in ("three_point", "linear", "nonlinear", "mixed"):
             assert np.all(np.isfinite(result.pose_error[m]))
             assert np.all(np.isfinite(result.error[m]))
-        # ordering of the paper: mixed best (lowest mean), three-point worst
+        # ordering of the paper: mixed best, three-point worst. (A pose off the Eq. 8
+        # optimum can have a slightly lower pose error by chance, so the means of methods
+        # that are nearly always at the optimum are compared to 0.1%.)
         means = {m: s["mean"] for m, s in stats.items()}
         assert means["three_point"] > max(means["linear"], means["nonlinear"], means["mixed"])
-        assert means["mixed"] <= min(means["linear"], means["nonlinear"]) + 1e-12
+        assert means["mixed"] <= 1.001 * min(means["linear"], means["nonlinear"])
+        assert stats["mixed"]["at_optimum"] >= max(
+            stats["linear"]["at_optimum"], stats["nonlinear"]["at_optimum"])
         # the optimum is OpenCV's
         R, t = opencv_optimum(bench)
         ref = float(jp.pose_error(bench.camera, R, t, bench.model_points, bench.image_points))

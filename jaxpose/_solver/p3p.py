@@ -108,8 +108,15 @@ def _cubic_roots(a, b, c):
 class _Candidates(NamedTuple):
     R: Float[Array, "4 3 3"]
     t: Float[Array, "4 3"]
-    real: Bool[Array, 4]
-    positive: Bool[Array, 4]
+    real: Bool[Array, " 4"]  # exact solutions
+    near: Bool[Array, " 4"]  # approximate: a double root that noise made complex
+    positive: Bool[Array, " 4"]
+
+
+# Relative size of a negative discriminant still taken as a (noisy) double root, and the
+# largest residual of the scale-free depth equations such an approximate root may keep.
+_NEAR = 0.05
+_NEAR_RESIDUAL = 1e-2
 
 
 def _p3p(bearings, points) -> _Candidates:
@@ -172,10 +179,15 @@ def _p3p(bearings, points) -> _Candidates:
         q = jnp.einsum("ki,ij,kj->k", dirs, Msum, dirs)
         lam = dirs * _safe_sqrt(_safe_div(1, q))[:, None]
         lam = jnp.where(jnp.sum(lam, axis=1, keepdims=True) < 0, -lam, lam)
-        return lam, jnp.broadcast_to((disc >= 0) & indefinite, (2,))
+        # A slightly negative discriminant is a real double root pushed off the real line
+        # by noise: keep its real part as an approximate solution.
+        near = (disc < 0) & (-disc <= _NEAR * (g12 * g12 + jnp.abs(g11 * g22)))
+        return lam, jnp.broadcast_to((disc >= 0) & indefinite, (2,)), jnp.broadcast_to(
+            near & indefinite, (2,)
+        )
 
-    lam, real = jax.vmap(on_plane)(normals)
-    lam, real = lam.reshape(4, 3), real.reshape(4)
+    lam, real, near = jax.vmap(on_plane)(normals)
+    lam, real, near = lam.reshape(4, 3), real.reshape(4), near.reshape(4)
 
     def residual(L):
         return jnp.stack(
@@ -204,6 +216,7 @@ def _p3p(bearings, points) -> _Candidates:
 
     lam, err = jax.vmap(polish)(lam)
     tol = 1e-6 if jnp.finfo(dtype).bits >= 64 else 1e-3
+    near = (near | real) & ~(real & (err < tol)) & (err < _NEAR_RESIDUAL)
     real = real & (err < tol)
     lam = lam * _safe_sqrt(total)
     positive = jnp.all(lam > 0, axis=1)
@@ -222,8 +235,7 @@ def _p3p(bearings, points) -> _Candidates:
 
     R, t = jax.vmap(pose)(lam)
     finite = jnp.all(jnp.isfinite(R), axis=(1, 2)) & jnp.all(jnp.isfinite(t), axis=1)
-    real = real & finite
-    return _Candidates(R, t, real, positive)
+    return _Candidates(R, t, real & finite, near & finite, positive)
 
 
 def p3p(bearings: Float[Array, "3 3"], points: Float[Array, "3 3"]):
@@ -251,7 +263,7 @@ class ThreePointResult(NamedTuple):
 
     R: Float[Array, "4 3 3"]
     t: Float[Array, "4 3"]
-    valid: Bool[Array, 4]
+    valid: Bool[Array, " 4"]
     status: Int[Array, ""]
 
 
@@ -270,6 +282,7 @@ def three_point(
     *,
     min_area: float = 40.0,
     collinear_tol: float = 1e-3,
+    approximate: bool = True,
 ) -> ThreePointResult:
     """The three-point method in the world frame, with the degeneracy tests of SPEC 3.1.
 
@@ -280,6 +293,10 @@ def three_point(
       (the paper: 40).
     - `collinear_tol`: model-triangle area over its longest edge squared below which the
       model points count as collinear (scale-free; an equilateral triangle has 0.43).
+    - `approximate`: also return near-real roots: a double root that image noise pushed
+      into a complex pair, kept as its real part (polished as far as it goes). They are
+      starting points, not exact solutions; on noisy data they can be the only root near
+      the true pose.
 
     **Returns:** a `ThreePointResult`: up to four poses `p = R m + t` with a mask.
     """
@@ -297,9 +314,11 @@ def three_point(
     finite = jnp.all(jnp.isfinite(C)) & jnp.all(jnp.isfinite(model)) & jnp.all(jnp.isfinite(image))
     degenerate_image = ~(area >= min_area)
     degenerate_model = ~(shape >= collinear_tol)
-    valid = c.real & c.positive & finite & ~degenerate_image & ~degenerate_model
+    candidate = (c.real | (c.near & approximate)) & c.positive
+    valid = candidate & finite & ~degenerate_image & ~degenerate_model
     status = jnp.select(
-        [~finite, degenerate_image, degenerate_model, ~jnp.any(c.real), ~jnp.any(valid)],
+        [~finite, degenerate_image, degenerate_model, ~jnp.any(c.real | (c.near & approximate)),
+         ~jnp.any(valid)],
         [
             Status.NOT_FINITE,
             Status.DEGENERATE_IMAGE,

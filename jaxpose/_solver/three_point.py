@@ -104,8 +104,20 @@ def _safe_sqrt(x):
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
 
 
+def _div_sqrt(a, x, tiny):
+    """Components of `a` divided by sqrt(x) (zero where x <= tiny).
+
+    Division, not multiplication by `rsqrt`: XLA materialises an expensive op that has
+    several users instead of re-fusing its inputs into every consumer, so dividing each
+    component makes the normalised vector a cheap, shared value.
+    """
+    ok = x > tiny
+    n = jnp.sqrt(jnp.where(ok, x, 1))
+    return tuple(jnp.where(ok, c / n, 0) for c in a)
+
+
 def _unit(a, tiny):
-    return _scale(_safe_rsqrt(_dot(a, a), tiny), a)
+    return _div_sqrt(a, _dot(a, a), tiny)
 
 
 def _sym_adj(s):
@@ -139,9 +151,26 @@ def _sym_quad(s, u, v):
     )
 
 
-def _barrier(tree):
-    """Stop XLA from fusing (and so recomputing) across solver stages."""
-    return jax.lax.optimization_barrier(tree)
+@jax.custom_jvp
+def _barrier(tree, key):
+    """Identity that XLA cannot fuse across: a one-trip `while` loop of unknown trip count.
+
+    XLA's CPU fusion duplicates cheap element-wise producers into every consumer fusion;
+    on a deep straight-line solver that multiplies the work many times over.
+    `optimization_barrier` is expanded away before fusion on CPU; a loop is not. `key`
+    is any array of the problem (its NaN-ness sets the trip count, so it is unknown to
+    the compiler). Tangents pass straight through (the JVP is the identity), so reverse
+    mode works.
+    """
+    start = jnp.where(jnp.isnan(key).any(), 1, 0).astype(jnp.int32)
+    _, tree = jax.lax.while_loop(lambda c: c[0] < 1, lambda c: (c[0] + 1, c[1]), (start, tree))
+    return tree
+
+
+@_barrier.defjvp
+def _barrier_jvp(primals, tangents):
+    tree, key = primals
+    return _barrier(tree, key), tangents[0]
 
 
 def _select(conds, options):
@@ -157,10 +186,10 @@ def _select(conds, options):
 
 
 def _monic_cubic_roots(a, b, c, tiny):
-    """Real roots of x^3 + a x^2 + b x + c, three of them (a single real root is repeated).
+    """Real roots of x^3 + a x^2 + b x + c as a `(3,)` array (a single real root repeated).
 
     Closed form (trigonometric for three real roots, Cardano's cancellation-free form for
-    one), then Newton polishing; returns `(roots, three_real)`.
+    one), then Newton polishing.
     """
     a3 = a / 3
     p = b - a * a3
@@ -173,37 +202,31 @@ def _monic_cubic_roots(a, b, c, tiny):
     # One real root: u^3 = -q/2 - sign(q) sqrt(h), t = u - p / (3u).
     sqrt_h = _safe_sqrt(jnp.where(one_real, h, 0))
     w = jnp.where(half_q >= 0, -half_q - sqrt_h, -half_q + sqrt_h)
-    w = jnp.where(one_real, w, 1)
-    u = jnp.cbrt(w)
+    u = jnp.cbrt(jnp.where(one_real, w, 1))
     t_one = u - _safe_div(p3, u, tiny)
 
     # Three real roots: t_k = 2 rho cos((phi - 2 pi k) / 3), cos(phi) = -q / (2 rho^3).
     rho = _safe_sqrt(-p3)
     cos_phi = jnp.clip(_safe_div(-half_q, rho * rho * rho, tiny), -1, 1)
     phi = jnp.arccos(jnp.where(one_real, 0, cos_phi))
-    two_pi = 2 * jnp.pi
-    roots = []
-    for k in range(3):
-        t_three = 2 * rho * jnp.cos((phi - two_pi * k) / 3)
-        x = jnp.where(one_real, t_one, t_three) - a3
-        for _ in range(_NEWTON_CUBIC):
-            f = ((x + a) * x + b) * x + c
-            df = (3 * x + 2 * a) * x + b
-            x = x - _safe_div(f, df, tiny)
-        roots.append(x)
-    return roots, ~one_real
+    k = jnp.arange(3, dtype=a.dtype)
+    t_three = 2 * rho * jnp.cos((phi - 2 * jnp.pi * k) / 3)
+    x = jnp.where(one_real, t_one, t_three) - a3
+    for _ in range(_NEWTON_CUBIC):
+        f = ((x + a) * x + b) * x + c
+        df = (3 * x + 2 * a) * x + b
+        x = x - _safe_div(f, df, tiny)
+    return x
 
 
 def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     """The (up to four) depth vectors of the normalised problem, a12 + a13 + a23 = 1.
 
-    Returns four `(lambda, real)` pairs, `lambda` a 3-tuple, `real` whether the candidate
-    is a real solution of the distance equations (any depth sign). Kept as separate
-    scalars (no stacking) so that XLA fuses element-wise without recomputation.
+    Returns `(lambda, real)`: `lambda` a 3-tuple of `(4,)` arrays, `real` `(4,)` whether
+    each candidate is a real solution of the distance equations (any depth sign).
     """
     tiny = jnp.finfo(eps.dtype).tiny * 1e8
     zero = jnp.zeros_like(c12)
-    one = jnp.ones_like(c12)
 
     # D1 = a23 M12 - a12 M23, D2 = a23 M13 - a13 M23 (symmetric 6-tuples).
     d1 = (a23, a23 - a12, -a12, -a23 * c12, zero, a12 * c23)
@@ -219,27 +242,22 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     ca = _safe_div(jnp.where(flip, k1, k2), lead, tiny)
     cb = _safe_div(jnp.where(flip, k2, k1), lead, tiny)
     cc = _safe_div(jnp.where(flip, k3, k0), lead, tiny)
-    roots, _ = _monic_cubic_roots(ca, cb, cc, tiny)
-    roots, d1, d2, flip = _barrier((roots, d1, d2, flip))
+    roots = _monic_cubic_roots(ca, cb, cc, tiny)  # (3,)
 
     # Score each root: D0 must be a real line pair (sigma1 sigma2 < 0), best separated.
-    best = None
-    for r in roots:
-        g = jnp.where(flip, one, r)
-        d = jnp.where(flip, r, one)
-        inv = _safe_rsqrt(g * g + d * d, tiny)
-        g, d = g * inv, d * inv
-        d0 = _sym_comb(d, d1, g, d2)
-        adj0 = _sym_adj(d0)
-        minors = adj0[0] + adj0[1] + adj0[2]  # sigma1 sigma2
-        trace = d0[0] + d0[1] + d0[2]  # sigma1 + sigma2
-        score = jnp.where(minors < 0, _safe_div(-minors, trace * trace - 2 * minors, tiny), -1)
-        cand = (score, g, d, d0, adj0)
-        if best is None:
-            best = cand
-        else:
-            best = jax.tree.map(lambda n, o, s=score > best[0]: jnp.where(s, n, o), cand, best)
-    score, g, d, d0, adj0 = _barrier(best)
+    g = jnp.where(flip, 1, roots)
+    d = jnp.where(flip, roots, 1)
+    g, d = _div_sqrt((g, d), g * g + d * d, tiny)
+    d0 = _sym_comb(d, d1, g, d2)
+    adj0 = _sym_adj(d0)
+    minors = adj0[0] + adj0[1] + adj0[2]  # sigma1 sigma2
+    trace = d0[0] + d0[1] + d0[2]  # sigma1 + sigma2
+    score = jnp.where(minors < 0, _safe_div(-minors, trace * trace - 2 * minors, tiny), -1)
+    first = (score[0] >= score[1]) & (score[0] >= score[2])
+    second = ~first & (score[1] >= score[2])
+    g, d, score = (_select([first, second, None], [x[0], x[1], x[2]]) for x in (g, d, score))
+    d0 = _sym_comb(d, d1, g, d2)
+    adj0 = _sym_adj(d0)
     pair_ok = score > 0
 
     # adj(D0) = -p p^T: p is the lines' common point, from the best-conditioned column.
@@ -249,8 +267,7 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     col = _select([use_x, use_y, None], [(bxx, bxy, bxz), (bxy, byy, byz), (bxz, byz, bzz)])
     diag = _select([use_x, use_y, None], [bxx, byy, bzz])
     pair_ok = pair_ok & (diag < 0)
-    p = _scale(_safe_rsqrt(-diag, tiny), col)
-    p, pair_ok = _barrier((p, pair_ok))
+    p = _div_sqrt(col, -diag, tiny)
 
     # N = D0 + [p]_x = 2 l m^T: the largest column is l, the largest row is m.
     xx, yy, zz, xy, xz, yz = d0
@@ -267,38 +284,43 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
         second = ~first & (norms[1] >= norms[2])
         return _select([first, second, None], list(vs))
 
-    lines = _barrier((largest(n_cols), largest(n_rows)))
+    l_col, l_row = largest(n_cols), largest(n_rows)
+    lines = tuple(_cat([a, b]) for a, b in zip(l_col, l_row, strict=True))  # (2,) each
 
     # On each line: Lambda = alpha p^ + beta v^, with v^ = l^ x p^ in the line's plane;
     # the complementary conic restricted there is a homogeneous quadratic.
     d_perp = _sym_comb(g, d1, -d, d2)
     p_hat = _unit(p, tiny)
-    out = []
-    for line in lines:
-        v_hat = _unit(_cross(line, p_hat), tiny)
-        qa = _sym_quad(d_perp, p_hat, p_hat)
-        qb = 2 * _sym_quad(d_perp, p_hat, v_hat)
-        qc = _sym_quad(d_perp, v_hat, v_hat)
-        disc = qb * qb - 4 * qa * qc
-        # A tangency (double solution) can come out a hair negative: accept, then let the
-        # Gauss-Newton residual test decide.
-        disc_ok = disc >= -64 * eps * (qb * qb + 4 * jnp.abs(qa * qc))
-        sq = _safe_sqrt(disc)
-        qq = jnp.where(qb >= 0, -(qb + sq) / 2, -(qb - sq) / 2)
-        for alpha, beta in ((qq, qa), (qc, qq)):
-            dvec = _axpy(alpha, p_hat, _scale(beta, v_hat))
-            quad = 2 * _dot(dvec, dvec) - 2 * (
-                c12 * dvec[0] * dvec[1] + c13 * dvec[0] * dvec[2] + c23 * dvec[1] * dvec[2]
-            )
-            s = _safe_rsqrt(quad, tiny)
-            s = jnp.where(dvec[0] + dvec[1] + dvec[2] < 0, -s, s)
-            out.append((_scale(s, dvec), pair_ok & disc_ok & (quad > tiny)))
-    return out
+    v_hat = _unit(_cross(lines, p_hat), tiny)
+    qa = _sym_quad(d_perp, p_hat, p_hat)
+    qb = 2 * _sym_quad(d_perp, p_hat, v_hat)
+    qc = _sym_quad(d_perp, v_hat, v_hat)
+    disc = qb * qb - 4 * qa * qc
+    # A tangency (double solution) can come out a hair negative: accept, then let the
+    # Gauss-Newton residual test decide.
+    disc_ok = disc >= -64 * eps * (qb * qb + 4 * jnp.abs(qa * qc))
+    sq = _safe_sqrt(disc)
+    qq = jnp.where(qb >= 0, -(qb + sq) / 2, -(qb - sq) / 2)
+    # Roots (alpha, beta) ~ (qq, qa) and (qc, qq): four candidates, two per line.
+    alpha = _cat([qq, qc])
+    beta = _cat([qa, qa, qq])
+    v4 = tuple(_cat([x, x]) for x in v_hat)
+    dvec = _axpy(alpha, p_hat, _scale(beta, v4))
+    quad = 2 * _dot(dvec, dvec) - 2 * (
+        c12 * dvec[0] * dvec[1] + c13 * dvec[0] * dvec[2] + c23 * dvec[1] * dvec[2]
+    )
+    sign = jnp.where(dvec[0] + dvec[1] + dvec[2] < 0, -1, 1)
+    real = pair_ok & _cat([disc_ok, disc_ok]) & (quad > tiny)
+    return _div_sqrt(_scale(sign, dvec), quad, tiny), real
 
 
 def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
-    """Polish the depths on lambda_i^2 + lambda_j^2 - 2 c_ij lambda_i lambda_j = a_ij."""
-    l1, l2, l3 = lam
+    """Polish the depths on lambda_i^2 + lambda_j^2 - 2 c_ij lambda_i lambda_j = a_ij.
+
+    Plain Newton steps (the system is square), the 3x3 solve by its adjugate; the result
+    is the last iterate unless that is worse than the start. Returns `(lambda, residual)`,
+    the residual the largest absolute equation error.
+    """
 
     def residual(l1, l2, l3):
         return (
@@ -310,9 +332,9 @@ def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
     def size(r):
         return jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))
 
-    r = residual(l1, l2, l3)
-    err = size(r)
+    l1, l2, l3 = lam
     for _ in range(_GAUSS_NEWTON):
+        r = residual(l1, l2, l3)
         # J = [[ja, jb, 0], [jc, 0, jd], [0, je, jf]], solved by its adjugate.
         ja, jb = 2 * (l1 - c12 * l2), 2 * (l2 - c12 * l1)
         jc, jd = 2 * (l1 - c13 * l3), 2 * (l3 - c13 * l1)
@@ -321,17 +343,14 @@ def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
         s1 = -jd * je * r[0] - jb * jf * r[1] + jb * jd * r[2]
         s2 = -jc * jf * r[0] + ja * jf * r[1] - ja * jd * r[2]
         s3 = jc * je * r[0] - ja * je * r[1] - jb * jc * r[2]
-        n1 = l1 - _safe_div(s1, det, tiny)
-        n2 = l2 - _safe_div(s2, det, tiny)
-        n3 = l3 - _safe_div(s3, det, tiny)
-        nr = residual(n1, n2, n3)
-        nerr = size(nr)
-        better = nerr < err
-        l1, l2, l3 = (jnp.where(better, n, o) for n, o in ((n1, l1), (n2, l2), (n3, l3)))
-        r = tuple(jnp.where(better, n, o) for n, o in zip(nr, r, strict=True))
-        err = jnp.where(better, nerr, err)
-        l1, l2, l3, r, err = _barrier((l1, l2, l3, r, err))
-    return (l1, l2, l3), err
+        l1 = l1 - _safe_div(s1, det, tiny)
+        l2 = l2 - _safe_div(s2, det, tiny)
+        l3 = l3 - _safe_div(s3, det, tiny)
+    err0 = size(residual(*lam))
+    err = size(residual(l1, l2, l3))
+    better = err <= err0
+    out = tuple(jnp.where(better, n, o) for n, o in zip((l1, l2, l3), lam, strict=True))
+    return out, jnp.where(better, err, err0)
 
 
 class _P3PFull(NamedTuple):
@@ -339,6 +358,26 @@ class _P3PFull(NamedTuple):
     t: Float[Array, "4 3"]
     valid: Bool[Array, "4"]
     real: Bool[Array, "4"]
+
+
+def _cat(parts):
+    """Concatenate along the last axis by in-place updates, not `concatenate`.
+
+    XLA's CPU fusion emitter can recompute the operands of a fused concatenate once per
+    operand and nesting level (exponentially slow on deep element-wise graphs); a chain of
+    dynamic-update-slices materialises each part once.
+    """
+    parts = [jnp.asarray(x) for x in parts]
+    parts = [x[..., None] if x.ndim == 0 else x for x in parts]
+    lead = jnp.broadcast_shapes(*(x.shape[:-1] for x in parts))
+    size = sum(x.shape[-1] for x in parts)
+    dtype = jnp.result_type(*parts)
+    out = jnp.zeros((*lead, size), dtype)
+    k = 0
+    for x in parts:
+        out = out.at[..., k : k + x.shape[-1]].set(jnp.broadcast_to(x, (*lead, x.shape[-1])))
+        k += x.shape[-1]
+    return out
 
 
 def _rows(x):
@@ -365,7 +404,6 @@ def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
     c12, c13, c23 = _dot(f[0], f[1]), _dot(f[0], f[2]), _dot(f[1], f[2])
 
     sg = jax.lax.stop_gradient
-    cands = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
     scale = _safe_sqrt(total)
 
     # Orthonormal frames from two edges, model side and camera side: R = Fy Fx^T.
@@ -375,38 +413,33 @@ def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
         return ex, _cross(ez, ex), ez
 
     fx = frame(x12, x13)
-    r_out, t_out, valids, reals = [], [], [], []
-    for lam0, real in cands:
-        lam, err = _gauss_newton(
-            tuple(sg(x) for x in lam0), c12, c13, c23, n12, n13, n23, tiny
-        )
-        real = real & (err <= jnp.sqrt(eps))
-        positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
-        lam = _scale(scale, lam)
-        p1 = _scale(lam[0], f[0])
-        fy = frame(_sub(p1, _scale(lam[1], f[1])), _sub(p1, _scale(lam[2], f[2])))
-        rot = [sum(fy[k][i] * fx[k][j] for k in range(3)) for i in range(3) for j in range(3)]
-        # t = mean_n (lambda_n f_n - R m_n) + offset
-        trans = []
-        for i in range(3):
-            acc = 0
-            for n in range(3):
-                acc = acc + lam[n] * f[n][i] - sum(rot[3 * i + j] * m[n][j] for j in range(3))
-            trans.append(acc / 3 + offset[i])
-        finite = jnp.isfinite(sum(rot) + sum(trans))
-        real = real & finite
-        valid = real & positive & usable
-        eye = (1, 0, 0, 0, 1, 0, 0, 0, 1)
-        r_out += [jnp.where(valid, x, e) for x, e in zip(rot, eye, strict=True)]
-        t_out += [jnp.where(valid, x, 0) for x in trans]
-        valids.append(valid)
-        reals.append(real)
-
+    lam0, real = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
+    lam, err = _gauss_newton(tuple(map(sg, lam0)), c12, c13, c23, n12, n13, n23, tiny)
+    real = real & (err <= jnp.sqrt(eps))
+    positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
+    lam = _scale(scale, lam)
+    p1 = _scale(lam[0], f[0])
+    fy = frame(_sub(p1, _scale(lam[1], f[1])), _sub(p1, _scale(lam[2], f[2])))
+    rot = [sum(fy[k][i] * fx[k][j] for k in range(3)) for i in range(3) for j in range(3)]
+    # t = mean_n (lambda_n f_n) - R mean_n (m_n) + offset
+    m_mean = [(m[0][j] + m[1][j] + m[2][j]) / 3 for j in range(3)]
+    trans = [
+        (lam[0] * f[0][i] + lam[1] * f[1][i] + lam[2] * f[2][i]) / 3
+        - sum(rot[3 * i + j] * m_mean[j] for j in range(3))
+        + offset[i]
+        for i in range(3)
+    ]
+    finite = jnp.isfinite(lam[0] + lam[1] + lam[2]) & jnp.isfinite(sum(m_mean) + sum(offset))
+    real = real & finite
+    valid = real & positive & usable
+    eye = (1, 0, 0, 0, 1, 0, 0, 0, 1)
+    rot = [jnp.where(valid, x, e) for x, e in zip(rot, eye, strict=True)]
+    trans = [jnp.where(valid, x, 0) for x in trans]
     return _P3PFull(
-        R=jnp.stack(r_out).reshape(4, 3, 3).astype(dtype),
-        t=jnp.stack(t_out).reshape(4, 3).astype(dtype),
-        valid=jnp.stack(valids),
-        real=jnp.stack(reals),
+        R=_cat([x[:, None] for x in rot]).reshape(4, 3, 3).astype(dtype),
+        t=_cat([x[:, None] for x in trans]).astype(dtype),
+        valid=valid,
+        real=real,
     )
 
 
