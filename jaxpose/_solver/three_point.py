@@ -11,36 +11,47 @@ Nordberg, ECCV 2018; the code is written from the maths, not from any implementa
 1. Distances are invariant under the motion, so with $a_{ij} = |m_i - m_j|^2$ and
    $c_{ij} = f_i \cdot f_j$ the depths $\Lambda = (\lambda_1, \lambda_2, \lambda_3)$ solve
    $\lambda_i^2 + \lambda_j^2 - 2 c_{ij} \lambda_i \lambda_j = a_{ij}$, i.e.
-   $\Lambda^T M_{ij} \Lambda = a_{ij}$.
+   $\Lambda^T M_{ij} \Lambda = a_{ij}$ (distances normalised so that $\sum a_{ij} = 1$).
 2. Eliminating the right-hand sides gives two homogeneous conics
    $D_1 = a_{23} M_{12} - a_{12} M_{23}$, $D_2 = a_{23} M_{13} - a_{13} M_{23}$, whose
    (at most four) common points are the directions of the solutions.
 3. A degenerate member $D_0 = \delta D_1 + \gamma D_2$ of their pencil is a root of the
    homogeneous cubic $\det(\delta D_1 + \gamma D_2) = 0$. All three roots are found in
-   closed form (Cardano / trigonometric, on whichever of $\gamma/\delta$, $\delta/\gamma$
-   keeps the roots bounded) and polished by Newton's method. Among the real roots whose
-   conic is a *real* pair of lines (its two non-zero eigenvalues $\sigma_1 \sigma_2 < 0$),
-   the one with the best-separated lines (largest $-\sigma_1\sigma_2/(\sigma_1^2+\sigma_2^2)$,
-   from the trace and the principal minors, no eigen-solver) is kept. When the true pose
-   exists, such a root always exists: with two real common points exactly one root is
-   real and it is the real line pair; with four, all three are.
-4. The line pair is split without eigenvectors: $\operatorname{adj}(D_0) = -p p^T$ gives
-   the lines' common point $p$, and $D_0 + [p]_\times = 2 l m^T$ is of rank one.
-5. On each line the other conic $\gamma D_1 - \delta D_2$ (never zero there) is a
-   homogeneous quadratic, solved in the cancellation-free form; the scale comes from
-   $\sum_{ij} \Lambda^T M_{ij} \Lambda = \sum_{ij} a_{ij}$ and the sign from
-   $\sum_i \lambda_i > 0$.
-6. Each of the four candidate $\Lambda$ is polished by Gauss-Newton on the three distance
-   equations (closed-form 3x3 solve), checked (real, residual small, every
-   $\lambda_i > 0$), and turned into a pose by aligning orthonormal frames built from
-   $(m_1 - m_2, m_1 - m_3)$ and $(\lambda_1 f_1 - \lambda_2 f_2, \lambda_1 f_1 - \lambda_3 f_3)$;
-   $R$ is a rotation to rounding error by construction.
+   closed form (trigonometric / Cardano, on whichever of $\gamma/\delta$, $\delta/\gamma$
+   keeps the roots bounded) and polished by Newton's method. The root kept is the one
+   whose two non-zero eigenvalues have the most opposite signs, the largest
+   $-\sigma_1\sigma_2/(\sigma_1^2+\sigma_2^2)$ (read from the trace and the principal
+   minors, no eigen-solver): a real pair of planes, as well separated as possible. When
+   the true pose exists, such a root exists: with two real common points exactly one
+   root is real and it is a real pair; with four, all three are.
+4. The pair is split without eigenvectors: $\operatorname{adj}(D_0) = -p p^T$ gives the
+   planes' common line $p$, and $D_0 + [p]_\times = 2 l m^T$ is of rank one.
+5. On each plane the pencil member $\gamma D_1 - \delta D_2$ (never zero there) is a
+   homogeneous quadratic in a basis $(p, l \times p)$, solved in the cancellation-free
+   form; the scale comes from $\sum_{ij} \Lambda^T M_{ij} \Lambda = \sum_{ij} a_{ij}$, the
+   sign from $\sum_i \lambda_i > 0$: four candidates.
+6. Each candidate is polished by Newton's method on the three distance equations
+   written as $(\lambda_i - \lambda_j)^2 + 2 s_{ij} \lambda_i \lambda_j = a_{ij}$ with
+   $s_{ij} = 1 - c_{ij} = |f_i - f_j|^2 / 2$ taken from the bearings' differences (no
+   cancellation for nearby bearings: this is what makes float32 usable), the 3x3 solve by
+   its adjugate; it is kept when the residual is at rounding level and every
+   $\lambda_i > 0$. The pose aligns orthonormal frames built from
+   $(m_1 - m_2, m_1 - m_3)$ and $(\lambda_1 f_1 - \lambda_2 f_2, \lambda_1 f_1 - \lambda_3 f_3)$
+   ($R$ is a rotation to rounding error by construction); $t$ maps the centroids.
 
 Everything is scalar arithmetic on fixed shapes with `jnp.where` selection (no LAPACK, no
-eigen-decomposition), so `jax.vmap` turns it into wide element-wise kernels. Gradients:
-the closed-form part sits behind `stop_gradient`; the Gauss-Newton polish carries the
-implicit-function derivative of the depths, and every division, square root and
-normalisation goes through a safe-where shim, so neither values nor gradients are ever NaN.
+eigen-decomposition); candidates live on a trailing axis of 4. Gradients: the closed-form
+part sits behind `stop_gradient`, the Newton polish carries the implicit-function
+derivative of the depths, and every division, square root and normalisation is guarded
+(a guarded denominator becomes `inf`, so the quotient and its derivative are 0), so
+neither values nor gradients are ever NaN.
+
+**XLA:CPU notes** (measured with jax 0.10.2). XLA re-fuses cheap element-wise producers
+into every consumer fusion and materialises only "expensive" ops (divide, sqrt, ...)
+that have several users, and its fused `concatenate` can be exponentially slow on deep
+operands. Hence: normalisations divide (instead of multiplying by `rsqrt`), guards sit
+inside the division, and arrays are assembled with in-place updates (`_cat`), which took
+the vmapped float64 cost from milliseconds to about 2 us per triplet on 2 cores.
 """
 
 from __future__ import annotations
@@ -55,6 +66,7 @@ from .._status import Status
 
 __all__ = ["ThreePointResult", "p3p", "three_point"]
 
+_PAIRS = ((0, 1), (0, 2), (1, 2))
 _NEWTON_CUBIC = 2
 _GAUSS_NEWTON = 3
 
@@ -90,13 +102,13 @@ def _scale(s, a):
 
 
 def _safe_div(num, den, tiny):
-    ok = jnp.abs(den) > tiny
-    return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
+    """num / den, and 0 where |den| <= tiny (values and gradients finite).
 
-
-def _safe_rsqrt(x, tiny):
-    ok = x > tiny
-    return jnp.where(ok, jax.lax.rsqrt(jnp.where(ok, x, 1)), 0)
+    The guard sits inside the division (den -> inf), so the result is one expensive op:
+    XLA then computes it once and shares it instead of re-fusing the guard's inputs into
+    every consumer.
+    """
+    return num / jnp.where(jnp.abs(den) > tiny, den, jnp.inf)
 
 
 def _safe_sqrt(x):
@@ -105,15 +117,14 @@ def _safe_sqrt(x):
 
 
 def _div_sqrt(a, x, tiny):
-    """Components of `a` divided by sqrt(x) (zero where x <= tiny).
+    """Components of `a` divided by sqrt(x), zero where x <= tiny.
 
     Division, not multiplication by `rsqrt`: XLA materialises an expensive op that has
     several users instead of re-fusing its inputs into every consumer, so dividing each
     component makes the normalised vector a cheap, shared value.
     """
-    ok = x > tiny
-    n = jnp.sqrt(jnp.where(ok, x, 1))
-    return tuple(jnp.where(ok, c / n, 0) for c in a)
+    n = jnp.sqrt(jnp.where(x > tiny, x, jnp.inf))
+    return tuple(c / n for c in a)
 
 
 def _unit(a, tiny):
@@ -149,28 +160,6 @@ def _sym_quad(s, u, v):
         + u[1] * (xy * v[0] + yy * v[1] + yz * v[2])
         + u[2] * (xz * v[0] + yz * v[1] + zz * v[2])
     )
-
-
-@jax.custom_jvp
-def _barrier(tree, key):
-    """Identity that XLA cannot fuse across: a one-trip `while` loop of unknown trip count.
-
-    XLA's CPU fusion duplicates cheap element-wise producers into every consumer fusion;
-    on a deep straight-line solver that multiplies the work many times over.
-    `optimization_barrier` is expanded away before fusion on CPU; a loop is not. `key`
-    is any array of the problem (its NaN-ness sets the trip count, so it is unknown to
-    the compiler). Tangents pass straight through (the JVP is the identity), so reverse
-    mode works.
-    """
-    start = jnp.where(jnp.isnan(key).any(), 1, 0).astype(jnp.int32)
-    _, tree = jax.lax.while_loop(lambda c: c[0] < 1, lambda c: (c[0] + 1, c[1]), (start, tree))
-    return tree
-
-
-@_barrier.defjvp
-def _barrier_jvp(primals, tangents):
-    tree, key = primals
-    return _barrier(tree, key), tangents[0]
 
 
 def _select(conds, options):
@@ -252,13 +241,14 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     adj0 = _sym_adj(d0)
     minors = adj0[0] + adj0[1] + adj0[2]  # sigma1 sigma2
     trace = d0[0] + d0[1] + d0[2]  # sigma1 + sigma2
-    score = jnp.where(minors < 0, _safe_div(-minors, trace * trace - 2 * minors, tiny), -1)
+    # -sigma1 sigma2 / (sigma1^2 + sigma2^2): in (0, 1/2] for a real pair, 1/2 at right angles.
+    score = _safe_div(-minors, trace * trace - 2 * minors, tiny)
     first = (score[0] >= score[1]) & (score[0] >= score[2])
     second = ~first & (score[1] >= score[2])
-    g, d, score = (_select([first, second, None], [x[0], x[1], x[2]]) for x in (g, d, score))
+    g, d = (_select([first, second, None], [x[0], x[1], x[2]]) for x in (g, d))
+    g, d = _div_sqrt((g, d), g * g + d * d, tiny)  # unit already; the division shares it
     d0 = _sym_comb(d, d1, g, d2)
     adj0 = _sym_adj(d0)
-    pair_ok = score > 0
 
     # adj(D0) = -p p^T: p is the lines' common point, from the best-conditioned column.
     bxx, byy, bzz, bxy, bxz, byz = adj0
@@ -266,8 +256,9 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     use_y = ~use_x & (byy <= bzz)
     col = _select([use_x, use_y, None], [(bxx, bxy, bxz), (bxy, byy, byz), (bxz, byz, bzz)])
     diag = _select([use_x, use_y, None], [bxx, byy, bzz])
-    pair_ok = pair_ok & (diag < 0)
-    p = _div_sqrt(col, -diag, tiny)
+    # A pair that should be real but rounds to a hair on the wrong side is still split
+    # (hence |diag|); the Gauss-Newton residual test rejects whatever is not a solution.
+    p = _div_sqrt(col, jnp.abs(diag), tiny)
 
     # N = D0 + [p]_x = 2 l m^T: the largest column is l, the largest row is m.
     xx, yy, zz, xy, xz, yz = d0
@@ -310,23 +301,27 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
         c12 * dvec[0] * dvec[1] + c13 * dvec[0] * dvec[2] + c23 * dvec[1] * dvec[2]
     )
     sign = jnp.where(dvec[0] + dvec[1] + dvec[2] < 0, -1, 1)
-    real = pair_ok & _cat([disc_ok, disc_ok]) & (quad > tiny)
+    real = _cat([disc_ok, disc_ok]) & (quad > tiny)
     return _div_sqrt(_scale(sign, dvec), quad, tiny), real
 
 
-def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
-    """Polish the depths on lambda_i^2 + lambda_j^2 - 2 c_ij lambda_i lambda_j = a_ij.
+def _gauss_newton(lam, s12, s13, s23, a12, a13, a23, tiny):
+    """Polish the depths on (lambda_i - lambda_j)^2 + 2 s_ij lambda_i lambda_j = a_ij.
 
-    Plain Newton steps (the system is square), the 3x3 solve by its adjugate; the result
-    is the last iterate unless that is worse than the start. Returns `(lambda, residual)`,
-    the residual the largest absolute equation error.
+    With `s_ij = 1 - c_ij` computed from the difference of the bearings, the residual has
+    no cancellation when bearings are close (narrow fields of view).
+
+    Plain Newton steps (the system is square), the 3x3 solve by its adjugate. Returns
+    `(lambda, residual)`, the residual the largest absolute equation error (the caller
+    rejects candidates that did not converge).
     """
 
     def residual(l1, l2, l3):
+        d12, d13, d23 = l1 - l2, l1 - l3, l2 - l3
         return (
-            l1 * l1 + l2 * l2 - 2 * c12 * l1 * l2 - a12,
-            l1 * l1 + l3 * l3 - 2 * c13 * l1 * l3 - a13,
-            l2 * l2 + l3 * l3 - 2 * c23 * l2 * l3 - a23,
+            d12 * d12 + 2 * s12 * l1 * l2 - a12,
+            d13 * d13 + 2 * s13 * l1 * l3 - a13,
+            d23 * d23 + 2 * s23 * l2 * l3 - a23,
         )
 
     def size(r):
@@ -336,9 +331,9 @@ def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
     for _ in range(_GAUSS_NEWTON):
         r = residual(l1, l2, l3)
         # J = [[ja, jb, 0], [jc, 0, jd], [0, je, jf]], solved by its adjugate.
-        ja, jb = 2 * (l1 - c12 * l2), 2 * (l2 - c12 * l1)
-        jc, jd = 2 * (l1 - c13 * l3), 2 * (l3 - c13 * l1)
-        je, jf = 2 * (l2 - c23 * l3), 2 * (l3 - c23 * l2)
+        ja, jb = 2 * (l1 - l2 + s12 * l2), 2 * (l2 - l1 + s12 * l1)
+        jc, jd = 2 * (l1 - l3 + s13 * l3), 2 * (l3 - l1 + s13 * l1)
+        je, jf = 2 * (l2 - l3 + s23 * l3), 2 * (l3 - l2 + s23 * l2)
         det = -ja * jd * je - jb * jc * jf
         s1 = -jd * je * r[0] - jb * jf * r[1] + jb * jd * r[2]
         s2 = -jc * jf * r[0] + ja * jf * r[1] - ja * jd * r[2]
@@ -346,11 +341,7 @@ def _gauss_newton(lam, c12, c13, c23, a12, a13, a23, tiny):
         l1 = l1 - _safe_div(s1, det, tiny)
         l2 = l2 - _safe_div(s2, det, tiny)
         l3 = l3 - _safe_div(s3, det, tiny)
-    err0 = size(residual(*lam))
-    err = size(residual(l1, l2, l3))
-    better = err <= err0
-    out = tuple(jnp.where(better, n, o) for n, o in zip((l1, l2, l3), lam, strict=True))
-    return out, jnp.where(better, err, err0)
+    return (l1, l2, l3), size(residual(l1, l2, l3))
 
 
 class _P3PFull(NamedTuple):
@@ -388,20 +379,27 @@ def _rows(x):
 def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
     """P3P on scalar tuples: `f`, `m` three 3-tuples each; `t` is shifted by `offset`.
 
-    All per-slot selection happens on scalars and the outputs are stacked once, at the
-    very end: XLA's CPU fusion emitter recomputes operands of stacked-then-consumed
-    values, which made an earlier layout exponentially slow.
+    `usable` (bool scalar) masks every slot; `real` in the result marks candidates that
+    solve the distance equations whatever their depth signs (for `BEHIND_CAMERA`).
     """
     eps = jnp.asarray(jnp.finfo(dtype).eps, dtype)
     tiny = jnp.finfo(dtype).tiny * 1e8
 
+    bearings_ok = (_dot(f[0], f[0]) > tiny) & (_dot(f[1], f[1]) > tiny) & (_dot(f[2], f[2]) > tiny)
     f = [_unit(fi, tiny) for fi in f]
     x12, x13, x23 = _sub(m[0], m[1]), _sub(m[0], m[2]), _sub(m[1], m[2])
     a12, a13, a23 = _dot(x12, x12), _dot(x13, x13), _dot(x23, x23)
     total = a12 + a13 + a23
     inv_total = _safe_div(1, total, tiny)
     n12, n13, n23 = a12 * inv_total, a13 * inv_total, a23 * inv_total
-    c12, c13, c23 = _dot(f[0], f[1]), _dot(f[0], f[2]), _dot(f[1], f[2])
+    # s_ij = 1 - f_i . f_j = |f_i - f_j|^2 / (|f_i|^2 + |f_j|^2), from the differences
+    # (accurate for nearby bearings; a true division also makes XLA share the value).
+    s12, s13, s23 = (
+        _safe_div(_dot(dij, dij), _dot(f[i], f[i]) + _dot(f[j], f[j]), tiny)
+        for i, j in _PAIRS
+        for dij in (_sub(f[i], f[j]),)
+    )
+    c12, c13, c23 = 1 - s12, 1 - s13, 1 - s23
 
     sg = jax.lax.stop_gradient
     scale = _safe_sqrt(total)
@@ -409,28 +407,43 @@ def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
     # Orthonormal frames from two edges, model side and camera side: R = Fy Fx^T.
     def frame(e1, e2):
         ex = _unit(e1, tiny)
-        ez = _unit(_cross(e1, e2), tiny)
-        return ex, _cross(ez, ex), ez
+        normal = _cross(e1, e2)
+        ez = _unit(normal, tiny)
+        return (ex, _cross(ez, ex), ez), _dot(normal, normal)
 
-    fx = frame(x12, x13)
+    fx, model_area2 = frame(x12, x13)
+    # A (numerically) collinear model leaves a rotation about its line free: no solution.
+    model_ok = model_area2 > eps * a12 * a13
     lam0, real = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
-    lam, err = _gauss_newton(tuple(map(sg, lam0)), c12, c13, c23, n12, n13, n23, tiny)
-    real = real & (err <= jnp.sqrt(eps))
+    lam, err = _gauss_newton(tuple(map(sg, lam0)), s12, s13, s23, n12, n13, n23, tiny)
+    # The equations' terms are of size |lambda|^2 (>= a12 + a13 + a23 = 1 on a solution).
+    real = real & (err <= 8 * jnp.sqrt(eps) * jnp.maximum(_dot(lam, lam), 1))
     positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
     lam = _scale(scale, lam)
     p1 = _scale(lam[0], f[0])
-    fy = frame(_sub(p1, _scale(lam[1], f[1])), _sub(p1, _scale(lam[2], f[2])))
+    fy, image_area2 = frame(_sub(p1, _scale(lam[1], f[1])), _sub(p1, _scale(lam[2], f[2])))
     rot = [sum(fy[k][i] * fx[k][j] for k in range(3)) for i in range(3) for j in range(3)]
-    # t = mean_n (lambda_n f_n) - R mean_n (m_n) + offset
+    # t = mean_n (lambda_n f_n) - R mean_n (m_n)   (offset added below)
     m_mean = [(m[0][j] + m[1][j] + m[2][j]) / 3 for j in range(3)]
     trans = [
         (lam[0] * f[0][i] + lam[1] * f[1][i] + lam[2] * f[2][i]) / 3
         - sum(rot[3 * i + j] * m_mean[j] for j in range(3))
-        + offset[i]
         for i in range(3)
     ]
-    finite = jnp.isfinite(lam[0] + lam[1] + lam[2]) & jnp.isfinite(sum(m_mean) + sum(offset))
-    real = real & finite
+    # Geometric check, sign-free: R m_n + t' = lambda_n f_n, to a small fraction of the
+    # model's size (rejects anything the polish did not turn into a true solution).
+    gap = 0
+    for n in range(3):
+        for i in range(3):
+            e = sum(rot[3 * i + j] * m[n][j] for j in range(3)) + trans[i] - lam[n] * f[n][i]
+            gap = gap + e * e
+    tol = jnp.finfo(dtype).eps ** (1 / 3)
+    finite = jnp.isfinite(lam[0] + lam[1] + lam[2]) & jnp.isfinite(sum(m_mean))
+    # On a solution the camera-side triangle is the model's: same area (a degenerate
+    # camera-side frame would make R singular).
+    same_area = image_area2 >= model_area2 / 4
+    real = real & finite & bearings_ok & model_ok & same_area & (gap <= tol * tol * total)
+    trans = [x + o for x, o in zip(trans, offset, strict=True)]
     valid = real & positive & usable
     eye = (1, 0, 0, 0, 1, 0, 0, 0, 1)
     rot = [jnp.where(valid, x, e) for x, e in zip(rot, eye, strict=True)]
