@@ -62,7 +62,7 @@ def solve(
     threshold: float | None = None,
     rel_threshold: float = 0.01,
     min_area: float = 40.0,
-    collinear_tol: float = 1e-3,
+    collinear_tol: float = 5e-3,
     linear_iterations: int = 5,
     nonlinear_budget: int | None = 32,
     max_steps: int = 50,

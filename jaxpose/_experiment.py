@@ -140,16 +140,28 @@ def _four_methods(camera, model, image, threshold):
         )
 
     usable = initial.status == Status.OK
+
+    def settled(res):
+        """A run that did not converge leaves the sample at its three-point pose."""
+        ok = res.status == Status.OK
+        pose = Pose(
+            jnp.where(ok[:, None, None], res.pose.R, initial.pose.R),
+            jnp.where(ok[:, None], res.pose.t, initial.pose.t),
+        )
+        return pose, jnp.where(ok, res.error, initial.error)
+
+    lin_pose, lin_error = settled(lin_res)
+    nl_pose, nl_error = settled(nl_res)
     poses = {
         "three_point": initial.pose,
-        "nonlinear": nl_res.pose,
-        "linear": lin_res.pose,
+        "nonlinear": nl_pose,
+        "linear": lin_pose,
         "mixed": mix.pose,
     }
     errors = {
         "three_point": initial.error,
-        "nonlinear": nl_res.error,
-        "linear": lin_res.error,
+        "nonlinear": nl_error,
+        "linear": lin_error,
         "mixed": mix.error,
     }
     statuses = {

@@ -27,7 +27,7 @@ paper's experiment does).
 Beyond the paper, a second chance: the best root by error can be a wrong root whose basin
 is a local minimum (on the bench, one triplet's best root is 120 degrees from the truth and
 every method ends at 18 px). Triplets that fail steps 2-4 run them again from their
-second-best root (`second_chance_budget` of them, in a buffer); `MixedResult.root` says
+other roots (`second_chance_budget` triplets, in a buffer); `MixedResult.root` says
 which root an accepted pose came from.
 """
 
@@ -71,7 +71,7 @@ class Initial(NamedTuple):
 
     **Fields:** `pose` (batched `(T,)`), `error` `(T,)` px, `status` `(T,)`
     (`OK` or why the triplet gave no pose), `triplets` `(T, 3)`; `alt_pose`, `alt_error`:
-    the second-best valid root (error `finfo.max` when there is none)."""
+    the other three roots, `(T, 3)`, best first (error `finfo.max` where there is none)."""
 
     pose: Pose
     error: Float[Array, " T"]
@@ -88,12 +88,13 @@ class MixedResult(NamedTuple):
     - `pose`, `error`, `status`: the final pose of each triplet, its Eq. 8 error and
       status (`ACCEPTED_LINEAR`, `ACCEPTED_AFTER_NONLINEAR`, `REJECTED`,
       `NONLINEAR_NOT_CONVERGED`, `NOT_ATTEMPTED`, or the three-point failure).
-      A triplet that was not accepted keeps the last pose it reached.
+      A triplet that was not accepted reports the better (by Eq. 8) of the last pose it
+      reached and its three-point start; never a pose with points behind the camera.
     - `initial`: step 1 (`Initial`).
     - `linear_pose`, `linear_error`, `linear_status`: step 2.
     - `threshold`: the acceptance threshold used (px).
-    - `root`: which three-point root the accepted pose came from (0: the best by error;
-      1: the second-best, after the first led to a local minimum).
+    - `root`: which three-point root the pose came from, by rank of Eq. 8 error (0: the
+      best; 1-3: another, after the best led to a local minimum).
     """
 
     pose: Pose
@@ -120,7 +121,7 @@ def initial_poses(
     obs: Observations,
     *,
     min_area: float = 40.0,
-    collinear_tol: float = 1e-3,
+    collinear_tol: float = 5e-3,
     triplets: np.ndarray | None = None,
 ) -> Initial:
     """Step 1 for every triplet (default: all `C(n, 3)`), roots picked by Eq. 8 error."""
@@ -139,18 +140,27 @@ def initial_poses(
         )
         err = jnp.where(sol.valid, _errors(Pose(sol.R, sol.t), obs), big)
         order = jnp.argsort(err)
-        best, second = order[0], order[1]
+        best, others = order[0], order[1:]
         used = jnp.all(obs.mask[ijk])
         status = jnp.where(used, sol.status, Status.TOO_FEW_POINTS).astype(jnp.int32)
         ok = status == Status.OK
-        alt_ok = ok & (err[second] < big)
+        alt_ok = ok & (err[others] < big)
         eye = jnp.eye(3, dtype=dtype)
         pose = Pose(jnp.where(ok, sol.R[best], eye), jnp.where(ok, sol.t[best], 0))
-        alt = Pose(jnp.where(alt_ok, sol.R[second], eye), jnp.where(alt_ok, sol.t[second], 0))
-        return pose, jnp.where(ok, err[best], big), status, alt, jnp.where(alt_ok, err[second], big)
+        alt = Pose(
+            jnp.where(alt_ok[:, None, None], sol.R[others], eye[None]),
+            jnp.where(alt_ok[:, None], sol.t[others], 0),
+        )
+        return pose, jnp.where(ok, err[best], big), status, alt, jnp.where(alt_ok, err[others], big)
 
     pose, error, status, alt, alt_error = jax.vmap(one)(jnp.asarray(idx))
     return Initial(pose, error, status, jnp.asarray(idx), alt, alt_error)
+
+
+def _in_front(pose: Pose, obs: Observations):
+    world = transform(pose, obs.model)
+    depth = world @ obs.camera[2, :3] + obs.camera[2, 3]
+    return jnp.all(jnp.where(obs.mask, depth > 0, True))
 
 
 def _where_pose(pred, a: Pose, b: Pose) -> Pose:
@@ -242,26 +252,36 @@ def mixed_from_initial(
     error = jnp.where(in_buffer, error3, lin.error)
 
     # Second chance: a triplet whose best root led to a local minimum (rejected, or LM
-    # failed) starts over from its second-best root, in a small buffer.
+    # failed) starts over from each of its other roots, in a small buffer.
     root = jnp.zeros(T, jnp.int32)
     if second_chance_budget > 0:
-        failed = in_buffer & ~Status.is_success(status) & (initial.alt_error < big)
+        failed = in_buffer & ~Status.is_success(status)
+        alt_need = failed[:, None] & (initial.alt_error < big)  # (T, 3)
 
         def from_root(start: Pose):
             return after_linear(start, run_linear(start))
 
-        k2 = max(1, min(int(second_chance_budget), T))
+        flat = jax.tree.map(lambda x: x.reshape(3 * T, *x.shape[2:]), initial.alt_pose)
+        k2 = max(1, min(3 * int(second_chance_budget), 3 * T))
         (pose_b, error_b, status_b), retried = _buffered(
-            from_root, failed, initial.alt_error, k2, initial.alt_pose
+            from_root, alt_need.reshape(-1), initial.alt_error.reshape(-1), k2, flat
         )
-        won = retried & Status.is_success(status_b)
-        status = jnp.where(won, status_b, status)
-        pose = _where_pose(won, pose_b, pose)
-        error = jnp.where(won, error_b, error)
-        root = jnp.where(won, 1, root)
+        won = (retried & Status.is_success(status_b)).reshape(T, 3)
+        error_b = jnp.where(won, error_b.reshape(T, 3), big)
+        pick = jnp.argmin(error_b, axis=1)
+        won_any = jnp.any(won, axis=1)
+        rows = jnp.arange(T) * 3 + pick
+        status = jnp.where(won_any, status_b[rows], status)
+        pose = _where_pose(won_any, jax.tree.map(lambda x: x[rows], pose_b), pose)
+        error = jnp.where(won_any, error_b[jnp.arange(T), pick], error)
+        root = jnp.where(won_any, 1 + pick, root)
 
-    pose = _where_pose(usable, pose, initial.pose)
-    error = jnp.where(usable, error, big)
+    # A triplet that was not accepted reports the better of its last pose and its
+    # three-point start, never a pose with points behind the camera.
+    in_front = jax.vmap(lambda R, t: _in_front(Pose(R, t), obs))(pose.R, pose.t)
+    keep = Status.is_success(status) | (in_front & (error <= initial.error))
+    pose = _where_pose(keep & usable, pose, initial.pose)
+    error = jnp.where(usable, jnp.where(keep, error, initial.error), big)
     return MixedResult(pose, error, status, initial, lin.pose, lin.error, lin.status, thr, root)
 
 
@@ -271,7 +291,7 @@ def mixed(
     threshold: float | None = None,
     rel_threshold: float = 0.01,
     min_area: float = 40.0,
-    collinear_tol: float = 1e-3,
+    collinear_tol: float = 5e-3,
     linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
     second_chance_budget: int = 8,

@@ -182,8 +182,10 @@ def _p3p(bearings, points) -> _Candidates:
         # A slightly negative discriminant is a real double root pushed off the real line
         # by noise: keep its real part as an approximate solution.
         near = (disc < 0) & (-disc <= _NEAR * (g12 * g12 + jnp.abs(g11 * g22)))
-        return lam, jnp.broadcast_to((disc >= 0) & indefinite, (2,)), jnp.broadcast_to(
-            near & indefinite, (2,)
+        return (
+            lam,
+            jnp.broadcast_to((disc >= 0) & indefinite, (2,)),
+            jnp.broadcast_to(near & indefinite, (2,)),
         )
 
     lam, real, near = jax.vmap(on_plane)(normals)
@@ -281,7 +283,7 @@ def three_point(
     image: Float[Array, "3 2"],
     *,
     min_area: float = 40.0,
-    collinear_tol: float = 1e-3,
+    collinear_tol: float = 5e-3,
     approximate: bool = True,
 ) -> ThreePointResult:
     """The three-point method in the world frame, with the degeneracy tests of SPEC 3.1.
@@ -317,8 +319,13 @@ def three_point(
     candidate = (c.real | (c.near & approximate)) & c.positive
     valid = candidate & finite & ~degenerate_image & ~degenerate_model
     status = jnp.select(
-        [~finite, degenerate_image, degenerate_model, ~jnp.any(c.real | (c.near & approximate)),
-         ~jnp.any(valid)],
+        [
+            ~finite,
+            degenerate_image,
+            degenerate_model,
+            ~jnp.any(c.real | (c.near & approximate)),
+            ~jnp.any(valid),
+        ],
         [
             Status.NOT_FINITE,
             Status.DEGENERATE_IMAGE,

@@ -287,9 +287,11 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     qb = 2 * _sym_quad(d_perp, p_hat, v_hat)
     qc = _sym_quad(d_perp, v_hat, v_hat)
     disc = qb * qb - 4 * qa * qc
-    # A tangency (double solution) can come out a hair negative: accept, then let the
-    # Gauss-Newton residual test decide.
-    disc_ok = disc >= -64 * eps * (qb * qb + 4 * jnp.abs(qa * qc))
+    # A tangency (double solution) can come out a little negative, by more than rounding
+    # in qa, qb, qc when the cubic's root is itself inexact: accept it (at the vertex) and
+    # let the Newton residual and the geometric check decide.
+    norm2 = _sym_inner(d_perp, d_perp)
+    disc_ok = disc >= -jnp.sqrt(eps) * norm2
     sq = _safe_sqrt(disc)
     qq = jnp.where(qb >= 0, -(qb + sq) / 2, -(qb - sq) / 2)
     # Roots (alpha, beta) ~ (qq, qa) and (qc, qq): four candidates, two per line.
@@ -311,9 +313,9 @@ def _gauss_newton(lam, s12, s13, s23, a12, a13, a23, tiny):
     With `s_ij = 1 - c_ij` computed from the difference of the bearings, the residual has
     no cancellation when bearings are close (narrow fields of view).
 
-    Plain Newton steps (the system is square), the 3x3 solve by its adjugate. Returns
-    `(lambda, residual)`, the residual the largest absolute equation error (the caller
-    rejects candidates that did not converge).
+    Newton steps (the system is square), the 3x3 solve by its adjugate; the iterate with
+    the smallest residual is returned. Returns `(lambda, residual)`, the residual the
+    largest absolute equation error (the caller rejects candidates that did not converge).
     """
 
     def residual(l1, l2, l3):
@@ -328,6 +330,7 @@ def _gauss_newton(lam, s12, s13, s23, a12, a13, a23, tiny):
         return jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))
 
     l1, l2, l3 = lam
+    best, best_err = lam, size(residual(*lam))
     for _ in range(_GAUSS_NEWTON):
         r = residual(l1, l2, l3)
         # J = [[ja, jb, 0], [jc, 0, jd], [0, je, jf]], solved by its adjugate.
@@ -341,7 +344,13 @@ def _gauss_newton(lam, s12, s13, s23, a12, a13, a23, tiny):
         l1 = l1 - _safe_div(s1, det, tiny)
         l2 = l2 - _safe_div(s2, det, tiny)
         l3 = l3 - _safe_div(s3, det, tiny)
-    return (l1, l2, l3), size(residual(l1, l2, l3))
+        # Keep the best iterate: near a double root the Jacobian is nearly singular and a
+        # full step can throw a good start away.
+        err = size(residual(l1, l2, l3))
+        better = err < best_err
+        best = tuple(jnp.where(better, n, o) for n, o in zip((l1, l2, l3), best, strict=True))
+        best_err = jnp.where(better, err, best_err)
+    return best, best_err
 
 
 class _P3PFull(NamedTuple):
