@@ -13,7 +13,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._camera import camera_matrix, undistort_pixels
 from ._errors import pose_error
-from ._mixed import best_triplet, initial_poses, mixed_from_initial
+from ._mixed import best_triplet, initial_poses, mixed_from_initial, triplet_indices
 from ._pose import Pose, observations
 from ._rotation import matrix_to_rotvec
 from ._solver.linear import linear
@@ -36,7 +36,8 @@ class Solution(NamedTuple):
     - `pose_error`: the paper's pose error (model units, e.g. mm).
     - `status`: `Status` code of the answer (`Status(int(status)).message`).
     - `accepted`: whether a pose was accepted (`ok` of `solve_pnp`).
-    - `triplet`: index (into `jaxpose.triplet_indices(n)`) of the triplet it came from.
+    - `triplet`: index (into `jaxpose.triplet_indices(n, max_triplets)`) of the triplet it
+      came from.
     """
 
     pose: Pose
@@ -66,6 +67,7 @@ def solve(
     linear_iterations: int = 5,
     nonlinear_budget: int | None = 32,
     max_steps: int = 50,
+    max_triplets: int | None = 2000,
 ) -> Solution:
     """Recover the pose of a known object from one calibrated image (JAX-native).
 
@@ -84,6 +86,8 @@ def solve(
       `rel_threshold` of the best converged error.
     - `min_area`, `collinear_tol`: degenerate-triplet tests (px^2; scale-free).
     - `linear_iterations`, `nonlinear_budget`, `max_steps`: see `jaxpose.mixed`.
+    - `max_triplets`: above this many triplets (`C(n, 3)`; n = 24 gives 2024) a fixed
+      seeded sample of this many is used instead of all (`jaxpose.triplet_indices`).
 
     **Returns:** a `Solution`. Gradients: the discrete choices (triplet, root, branch)
     carry none; the pose is differentiable through the optimality conditions of Eq. 8 at
@@ -94,7 +98,10 @@ def solve(
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     initial = initial_poses(
-        jax.lax.stop_gradient(obs), min_area=min_area, collinear_tol=collinear_tol
+        jax.lax.stop_gradient(obs),
+        min_area=min_area,
+        collinear_tol=collinear_tol,
+        triplets=triplet_indices(obs.model.shape[0], max_triplets),
     )
     sobs = jax.lax.stop_gradient(obs)
     usable = initial.status == Status.OK

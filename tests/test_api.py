@@ -157,5 +157,5 @@ def test_solve_is_jit_vmap_and_grad_friendly():
     def loss(image):
         return jnp.sum(jp.solve(C[0], M[0], image).pose.t)
 
-    g = jax.grad(loss)(I[0])
+    g = jax.jit(jax.grad(loss))(I[0])
     assert g.shape == (6, 2) and np.all(np.isfinite(g)) and np.any(g != 0)

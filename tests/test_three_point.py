@@ -337,20 +337,6 @@ def test_three_point_statuses_and_degenerate_inputs():
     assert out.status[2] == Status.DEGENERATE_IMAGE
 
 
-def test_three_point_float32():
-    rng = np.random.default_rng(11)
-    scenes = [_scene(rng, s) for s in [1.0, -2.0] * 32]
-    C, m, uv, R, t = (np.stack(x) for x in zip(*scenes, strict=True))
-    # centre the world near the model so float32 keeps the digits that matter
-    out = run_three_point(C, m, uv, jnp.float32)
-    assert out.R.dtype == np.float32
-    assert np.isfinite(out.R).all() and np.isfinite(out.t).all()
-    best = pose_errors(out.R, out.t, out.valid, R, t).min(axis=1)
-    rate = np.mean(best < 1e-3)
-    print(f"three_point float32: {rate:.3f} of 64 within 1e-3")
-    assert rate >= 0.95
-
-
 def test_three_point_gradients_finite_and_correct():
     """Reverse-mode gradients: finite on degenerate inputs, right on a regular one."""
     rng = np.random.default_rng(5)
@@ -363,7 +349,9 @@ def test_three_point_gradients_finite_and_correct():
         per_slot = jnp.sum(out.R * W[None], axis=(-2, -1)) + out.t @ w
         return jnp.sum(jnp.where(out.valid, per_slot, 0.0))
 
-    grad = jax.jit(jax.vmap(jax.grad(objective, argnums=(0, 1, 2))))
+    # Eager (op-by-op) on purpose: compiling the reverse pass of the whole solver costs
+    # more than running it a few times.
+    grad = jax.grad(objective, argnums=(0, 1, 2))
     cases = [
         (C, m, uv),
         (C, np.zeros((3, 3)), uv),  # coincident model points
@@ -371,11 +359,11 @@ def test_three_point_gradients_finite_and_correct():
         (C, np.array([[0.0, 0, 0], [1, 1, 1], [2, 2, 2]]), uv),  # collinear model
         (np.zeros((3, 4)), m, uv),  # zero camera
     ]
-    cases += [cases[0]] * (8 - len(cases))
-    args = [jnp.asarray(np.stack(x)) for x in zip(*cases, strict=True)]
-    grads = grad(*args)
-    for g in grads:
+    stacked = (jnp.asarray(np.stack(x)) for x in zip(*cases, strict=True))
+    all_grads = jax.vmap(grad)(*stacked)
+    for g in all_grads:
         assert np.isfinite(np.asarray(g)).all()
+    grads = [g[0] for g in all_grads]
 
     # central differences on the regular case, along a random direction per argument,
     # evaluated through the compiled batched three_point
@@ -394,5 +382,5 @@ def test_three_point_gradients_finite_and_correct():
     out = run_three_point(*(np.stack(x) for x in zip(*batch, strict=True)))
     for k in range(3):
         fd = (value(out, 2 * k) - value(out, 2 * k + 1)) / (2 * steps[k])
-        ad = np.sum(np.asarray(grads[k][0]) * dirs[k])
+        ad = np.sum(np.asarray(grads[k]) * dirs[k])
         assert abs(fd - ad) <= 1e-5 * max(1.0, abs(ad)), (k, fd, ad)

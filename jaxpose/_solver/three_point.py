@@ -307,6 +307,52 @@ def _depth_candidates(c12, c13, c23, a12, a13, a23, eps):
     return _div_sqrt(_scale(sign, dvec), quad, tiny), real
 
 
+def _jacobian(l1, l2, l3, s12, s13, s23):
+    """J = [[ja, jb, 0], [jc, 0, jd], [0, je, jf]] of the distance equations, and det J."""
+    ja, jb = 2 * (l1 - l2 + s12 * l2), 2 * (l2 - l1 + s12 * l1)
+    jc, jd = 2 * (l1 - l3 + s13 * l3), 2 * (l3 - l1 + s13 * l1)
+    je, jf = 2 * (l2 - l3 + s23 * l3), 2 * (l3 - l2 + s23 * l2)
+    return (ja, jb, jc, jd, je, jf), -ja * jd * je - jb * jc * jf
+
+
+def _solve(jac, r):
+    """adj(J) r (divide by det J for J^-1 r)."""
+    ja, jb, jc, jd, je, jf = jac
+    return (
+        -jd * je * r[0] - jb * jf * r[1] + jb * jd * r[2],
+        -jc * jf * r[0] + ja * jf * r[1] - ja * jd * r[2],
+        jc * je * r[0] - ja * je * r[1] - jb * jc * r[2],
+    )
+
+
+@jax.custom_jvp
+def _implicit_depths(lam, s12, s13, s23, a12, a13, a23, tiny):
+    """The converged depths `lam`, with their derivative from the implicit function theorem.
+
+    The value is `lam` itself (computed under `stop_gradient`); the JVP is
+    `-J^-1 (dF/ds ds + dF/da da)` for the distance equations F at `lam`, exact at a
+    solution. This keeps the reverse pass one 3x3 solve deep instead of differentiating
+    the root finding and every Newton step.
+    """
+    return lam
+
+
+@_implicit_depths.defjvp
+def _implicit_depths_jvp(primals, tangents):
+    lam, s12, s13, s23, a12, a13, a23, tiny = primals
+    _, ds12, ds13, ds23, da12, da13, da23, _ = tangents
+    l1, l2, l3 = lam
+    jac, det = _jacobian(l1, l2, l3, s12, s13, s23)
+    df = (
+        2 * l1 * l2 * ds12 - da12,
+        2 * l1 * l3 * ds13 - da13,
+        2 * l2 * l3 * ds23 - da23,
+    )
+    step = _solve(jac, df)
+    dlam = tuple(-_safe_div(x, det, tiny) for x in step)
+    return lam, dlam
+
+
 def _gauss_newton(lam, s12, s13, s23, a12, a13, a23, tiny):
     """Polish the depths on (lambda_i - lambda_j)^2 + 2 s_ij lambda_i lambda_j = a_ij.
 
@@ -332,15 +378,8 @@ def _gauss_newton(lam, s12, s13, s23, a12, a13, a23, tiny):
     l1, l2, l3 = lam
     best, best_err = lam, size(residual(*lam))
     for _ in range(_GAUSS_NEWTON):
-        r = residual(l1, l2, l3)
-        # J = [[ja, jb, 0], [jc, 0, jd], [0, je, jf]], solved by its adjugate.
-        ja, jb = 2 * (l1 - l2 + s12 * l2), 2 * (l2 - l1 + s12 * l1)
-        jc, jd = 2 * (l1 - l3 + s13 * l3), 2 * (l3 - l1 + s13 * l1)
-        je, jf = 2 * (l2 - l3 + s23 * l3), 2 * (l3 - l2 + s23 * l2)
-        det = -ja * jd * je - jb * jc * jf
-        s1 = -jd * je * r[0] - jb * jf * r[1] + jb * jd * r[2]
-        s2 = -jc * jf * r[0] + ja * jf * r[1] - ja * jd * r[2]
-        s3 = jc * je * r[0] - ja * je * r[1] - jb * jc * r[2]
+        jac, det = _jacobian(l1, l2, l3, s12, s13, s23)
+        s1, s2, s3 = _solve(jac, residual(l1, l2, l3))
         l1 = l1 - _safe_div(s1, det, tiny)
         l2 = l2 - _safe_div(s2, det, tiny)
         l3 = l3 - _safe_div(s3, det, tiny)
@@ -423,10 +462,17 @@ def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
     fx, model_area2 = frame(x12, x13)
     # A (numerically) collinear model leaves a rotation about its line free: no solution.
     model_ok = model_area2 > eps * a12 * a13
-    lam0, real = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
-    lam, err = _gauss_newton(tuple(map(sg, lam0)), s12, s13, s23, n12, n13, n23, tiny)
-    # The equations' terms are of size |lambda|^2 (>= a12 + a13 + a23 = 1 on a solution).
-    real = real & (err <= 8 * jnp.sqrt(eps) * jnp.maximum(_dot(lam, lam), 1))
+    coeffs = (s12, s13, s23, n12, n13, n23)
+    lam, real = _depth_candidates(*map(sg, (c12, c13, c23, n12, n13, n23)), eps)
+    lam, _ = _gauss_newton(lam, *map(sg, coeffs), tiny)
+    # Converged: each equation holds to a small multiple of its own terms' rounding
+    # (all terms are <= a_ij <= 1 on a positive solution, so this is strict there).
+    for (i, j), s, a in zip(_PAIRS, coeffs[:3], coeffs[3:], strict=True):
+        d = lam[i] - lam[j]
+        sq, cross = d * d, 2 * sg(s) * lam[i] * lam[j]
+        res = sq + cross - sg(a)
+        real = real & (jnp.abs(res) <= 8 * jnp.sqrt(eps) * (sq + jnp.abs(cross) + sg(a)))
+    lam = _implicit_depths(lam, *coeffs, tiny)
     positive = (lam[0] > 0) & (lam[1] > 0) & (lam[2] > 0)
     lam = _scale(scale, lam)
     p1 = _scale(lam[0], f[0])
@@ -439,24 +485,19 @@ def _p3p_full(f, m, offset, usable, dtype) -> _P3PFull:
         - sum(rot[3 * i + j] * m_mean[j] for j in range(3))
         for i in range(3)
     ]
-    # Geometric check, sign-free: R m_n + t' = lambda_n f_n, to a small fraction of the
-    # model's size (rejects anything the polish did not turn into a true solution).
-    gap = 0
-    for n in range(3):
-        for i in range(3):
-            e = sum(rot[3 * i + j] * m[n][j] for j in range(3)) + trans[i] - lam[n] * f[n][i]
-            gap = gap + e * e
-    tol = jnp.finfo(dtype).eps ** (1 / 3)
     finite = jnp.isfinite(lam[0] + lam[1] + lam[2]) & jnp.isfinite(sum(m_mean))
     # On a solution the camera-side triangle is the model's: same area (a degenerate
     # camera-side frame would make R singular).
     same_area = image_area2 >= model_area2 / 4
-    real = real & finite & bearings_ok & model_ok & same_area & (gap <= tol * tol * total)
+    real = real & finite & bearings_ok & model_ok & same_area
     trans = [x + o for x, o in zip(trans, offset, strict=True)]
     valid = real & positive & usable
+    # One shared copy of the mask: a division is "expensive" to XLA, so it is computed
+    # once rather than re-fused (with everything it depends on) into all 48 outputs.
+    keep = _safe_div(1, jnp.where(valid, 1, 0).astype(dtype), tiny) > 0
     eye = (1, 0, 0, 0, 1, 0, 0, 0, 1)
-    rot = [jnp.where(valid, x, e) for x, e in zip(rot, eye, strict=True)]
-    trans = [jnp.where(valid, x, 0) for x in trans]
+    rot = [jnp.where(keep, x, e) for x, e in zip(rot, eye, strict=True)]
+    trans = [jnp.where(keep, x, 0) for x in trans]
     return _P3PFull(
         R=_cat([x[:, None] for x in rot]).reshape(4, 3, 3).astype(dtype),
         t=_cat([x[:, None] for x in trans]).astype(dtype),
