@@ -126,7 +126,7 @@ def run_jaxpose(data, dtype, repeats, chunk=0):
     import jax
     import jax.numpy as jnp
 
-    from jaxpose._solver.three_point import p3p
+    from jaxpose import p3p
 
     if chunk:
         # The batch as a sequence of vmapped chunks (`lax.map`): each fused kernel then

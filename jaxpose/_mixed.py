@@ -153,6 +153,7 @@ def initial_poses(
             obs.image[ijk],
             min_area=min_area,
             collinear_tol=collinear_tol,
+            approximate=True,
         )
         err = jnp.where(sol.valid, _errors(Pose(sol.R, sol.t), obs), big)
         order = jnp.argsort(err)

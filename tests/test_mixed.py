@@ -44,7 +44,8 @@ def test_mixed_reaches_the_optimum(experiments):
         assert means["three_point"] > max(means["linear"], means["nonlinear"], means["mixed"])
         assert means["mixed"] <= 1.001 * min(means["linear"], means["nonlinear"])
         assert stats["mixed"]["at_optimum"] >= max(
-            stats["linear"]["at_optimum"], stats["nonlinear"]["at_optimum"])
+            stats["linear"]["at_optimum"], stats["nonlinear"]["at_optimum"]
+        )
         # the optimum is OpenCV's
         R, t = opencv_optimum(bench)
         ref = float(jp.pose_error(bench.camera, R, t, bench.model_points, bench.image_points))

@@ -120,9 +120,74 @@ _NEAR_RESIDUAL = 1e-2
 
 
 def _p3p(bearings, points) -> _Candidates:
+    """Candidates with exact gradients: the roots are found on stop-gradient inputs, then
+    a Newton step with a stop-gradient Jacobian, applied to the derivative only, attaches
+    the implicit-function derivative of the depths (the value stays the root)."""
     dtype = jnp.result_type(bearings, points, jnp.float32)
     y = _unit(jnp.asarray(bearings, dtype))
     x = jnp.asarray(points, dtype)
+    sg = jax.lax.stop_gradient
+    lam0, real, near = _depths(sg(y), sg(x))
+    d12, d13, d23 = x[0] - x[1], x[0] - x[2], x[1] - x[2]
+    a = jnp.stack([d12 @ d12, d13 @ d13, d23 @ d23])
+    total = jnp.sum(a)
+    a12, a13, a23 = a * _safe_div(1, total)
+    b12, b13, b23 = y[0] @ y[1], y[0] @ y[2], y[1] @ y[2]
+
+    def implicit(L):
+        f = _equations(L, b12, b13, b23, a12, a13, a23)
+        J = sg(_equations_jacobian(L, b12, b13, b23))
+        adjJ = _adj3(J)
+        step = adjJ @ f * _safe_div(1, J[0] @ adjJ[:, 0])
+        return L - (step - sg(step))  # value: the root; derivative: -J^-1 dF
+
+    lam = jax.vmap(implicit)(lam0)
+    lam = lam * _safe_sqrt(total)
+    positive = jnp.all(lam > 0, axis=1)
+
+    def frame(e1, e2):
+        ex = _unit(e1)
+        ez = _unit(jnp.cross(e1, e2))
+        return jnp.stack([ex, jnp.cross(ez, ex), ez], axis=1)
+
+    Fx = frame(d12, d13)
+
+    def pose(L):
+        P = L[:, None] * y
+        R = frame(P[0] - P[1], P[0] - P[2]) @ Fx.T
+        return R, jnp.mean(P - x @ R.T, axis=0)
+
+    R, t = jax.vmap(pose)(lam)
+    finite = jnp.all(jnp.isfinite(R), axis=(1, 2)) & jnp.all(jnp.isfinite(t), axis=1)
+    return _Candidates(R, t, real & finite, near & finite, positive)
+
+
+def _equations(L, b12, b13, b23, a12, a13, a23):
+    """The three law-of-cosines equations (scale-free), residuals `(3,)`."""
+    return jnp.stack(
+        [
+            L[0] ** 2 + L[1] ** 2 - 2 * b12 * L[0] * L[1] - a12,
+            L[0] ** 2 + L[2] ** 2 - 2 * b13 * L[0] * L[2] - a13,
+            L[1] ** 2 + L[2] ** 2 - 2 * b23 * L[1] * L[2] - a23,
+        ]
+    )
+
+
+def _equations_jacobian(L, b12, b13, b23):
+    z = jnp.zeros_like(L[0])
+    return jnp.stack(
+        [
+            jnp.stack([2 * (L[0] - b12 * L[1]), 2 * (L[1] - b12 * L[0]), z]),
+            jnp.stack([2 * (L[0] - b13 * L[2]), z, 2 * (L[2] - b13 * L[0])]),
+            jnp.stack([z, 2 * (L[1] - b23 * L[2]), 2 * (L[2] - b23 * L[1])]),
+        ]
+    )
+
+
+def _depths(y, x):
+    """Scale-free depths of the four candidates (normalised so that the `a_ij` sum to 1),
+    with masks `real` (exact solutions) and `near` (approximate, see `_NEAR`)."""
+    dtype = y.dtype
     d12, d13, d23 = x[0] - x[1], x[0] - x[2], x[1] - x[2]
     a = jnp.stack([d12 @ d12, d13 @ d13, d23 @ d23])
     total = jnp.sum(a)
@@ -220,24 +285,7 @@ def _p3p(bearings, points) -> _Candidates:
     tol = 1e-6 if jnp.finfo(dtype).bits >= 64 else 1e-3
     near = (near | real) & ~(real & (err < tol)) & (err < _NEAR_RESIDUAL)
     real = real & (err < tol)
-    lam = lam * _safe_sqrt(total)
-    positive = jnp.all(lam > 0, axis=1)
-
-    def frame(e1, e2):
-        ex = _unit(e1)
-        ez = _unit(jnp.cross(e1, e2))
-        return jnp.stack([ex, jnp.cross(ez, ex), ez], axis=1)
-
-    Fx = frame(d12, d13)
-
-    def pose(L):
-        P = L[:, None] * y
-        R = frame(P[0] - P[1], P[0] - P[2]) @ Fx.T
-        return R, jnp.mean(P - x @ R.T, axis=0)
-
-    R, t = jax.vmap(pose)(lam)
-    finite = jnp.all(jnp.isfinite(R), axis=(1, 2)) & jnp.all(jnp.isfinite(t), axis=1)
-    return _Candidates(R, t, real & finite, near & finite, positive)
+    return lam, real, near
 
 
 def p3p(bearings: Float[Array, "3 3"], points: Float[Array, "3 3"]):
@@ -284,7 +332,7 @@ def three_point(
     *,
     min_area: float = 40.0,
     collinear_tol: float = 5e-3,
-    approximate: bool = True,
+    approximate: bool = False,
 ) -> ThreePointResult:
     """The three-point method in the world frame, with the degeneracy tests of SPEC 3.1.
 
