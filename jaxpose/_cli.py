@@ -17,7 +17,8 @@ class CliError(Exception):
 def _console():
     from rich.console import Console
 
-    return Console(stderr=False)
+    # Table 1 needs about 100 columns; rich falls back to 80 when output is not a terminal.
+    return Console(width=None if sys.stdout.isatty() else 110)
 
 
 def _setup_jax(x64: bool = True) -> None:
