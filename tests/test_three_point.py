@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import assume, given
+from hypothesis import assume, example, given
 from hypothesis import strategies as st
 
 from jaxpose._solver.p3p import ThreePointResult, p3p, three_point
@@ -185,6 +185,12 @@ def test_p3p_degenerate_inputs_finite():
     "at equal depths, quat=[0,0,0,1], trans=[0,0,1], rays=[0,.5,0,0,.25,0], depths=[.5]*3) "
     "give the cubic repeated roots and the degenerate-member choice can miss the true pose",
     strict=False,
+)
+@example(
+    quat=[0.0, 0.0, 0.0, 1.0],
+    trans=[0.0, 0.0, 1.0],
+    rays=[0.0, 0.5, 0.0, 0.0, 0.25, 0.0],
+    depths=[0.5, 0.5, 0.5],
 )
 @given(
     quat=st.lists(st.floats(-1, 1), min_size=4, max_size=4),
