@@ -146,7 +146,7 @@ def _cmd_bench(args) -> int:
     # The equivalent OpenCV loop: P3P per triplet, best root over all matches, LM refine.
     from ._mixed import triplet_indices
 
-    K, R_wc, t_wc = bench.K, bench.R_wc, bench.t_wc
+    K = bench.K
     world = np.asarray(bench.model_points)
     img = np.asarray(bench.image_points)
     trip = triplet_indices(len(world))
@@ -169,7 +169,6 @@ def _cmd_bench(args) -> int:
                 cv2.solvePnPRefineLM(world, img, K, None, best[1].copy(), best[2].copy())
         return best
 
-    _ = R_wc, t_wc
     t0 = time.perf_counter()
     for _ in range(max(1, args.repeat // 10)):
         opencv_loop()
