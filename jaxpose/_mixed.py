@@ -43,7 +43,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._pose import Observations, Pose, transform
-from ._residuals import pixel_residuals, rms
+from ._residuals import in_front, pixel_residuals, rms
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
 from ._solver.p3p import three_point
@@ -174,12 +174,6 @@ def initial_poses(
     return Initial(pose, error, status, jnp.asarray(idx), alt, alt_error)
 
 
-def _in_front(pose: Pose, obs: Observations):
-    world = transform(pose, obs.model)
-    depth = world @ obs.camera[2, :3] + obs.camera[2, 3]
-    return jnp.all(jnp.where(obs.mask, depth > 0, True))
-
-
 def _where_pose(pred, a: Pose, b: Pose) -> Pose:
     return Pose(jnp.where(pred[:, None, None], a.R, b.R), jnp.where(pred[:, None], a.t, b.t))
 
@@ -295,8 +289,8 @@ def mixed_from_initial(
 
     # A triplet that was not accepted reports the better of its last pose and its
     # three-point start, never a pose with points behind the camera.
-    in_front = jax.vmap(lambda R, t: _in_front(Pose(R, t), obs))(pose.R, pose.t)
-    keep = Status.is_success(status) | (in_front & (error <= initial.error))
+    front = jax.vmap(lambda R, t: in_front(transform(Pose(R, t), obs.model), obs))(pose.R, pose.t)
+    keep = Status.is_success(status) | (front & (error <= initial.error))
     pose = _where_pose(keep & usable, pose, initial.pose)
     error = jnp.where(usable, jnp.where(keep, error, initial.error), big)
     return MixedResult(pose, error, status, initial, lin.pose, lin.error, lin.status, thr, root)

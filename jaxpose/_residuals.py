@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ._pose import Observations
 from ._rotation import quaternion_vector_to_matrix, rotvec_to_matrix
@@ -47,6 +47,11 @@ def plane_residuals(world: Float[Array, "n 3"], obs: Observations) -> Float[Arra
 def depths(world: Float[Array, "n 3"], obs: Observations) -> Float[Array, " n"]:
     """Depth `c3 . [p 1]` of world points in front of the (normalised) camera."""
     return world @ obs.camera[2, :3] + obs.camera[2, 3]
+
+
+def in_front(world: Float[Array, "n 3"], obs: Observations) -> Bool[Array, ""]:
+    """Whether every masked world point has positive depth (is in front of the camera)."""
+    return jnp.all(jnp.where(obs.mask, depths(world, obs) > 0, True))
 
 
 def safe_inverse_depth(s):

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from .._pose import Observations, Pose, transform
-from .._residuals import depths, pixel_residuals, plane_residuals, rms, safe_inverse_depth
+from .._residuals import depths, in_front, pixel_residuals, plane_residuals, rms, safe_inverse_depth
 from .._rotation import rotvec_to_matrix
 from .._status import Status
 
@@ -146,10 +146,10 @@ def linear(
     world = transform(pose, obs.model)
     error = rms(pixel_residuals(world, obs), obs.mask)
     finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t))
-    in_front = jnp.all(jnp.where(obs.mask, depths(world, obs) > 0, True))
+    front = in_front(world, obs)
     enough = jnp.sum(obs.mask) >= 3
     status = jnp.select(
-        [~enough, ~finite, ~in_front, ~(step < tol)],
+        [~enough, ~finite, ~front, ~(step < tol)],
         [
             Status.TOO_FEW_POINTS,
             Status.NOT_FINITE,

@@ -30,7 +30,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from .._pose import Observations, Pose, transform
-from .._residuals import depths, pixel_residuals, rms
+from .._residuals import in_front, pixel_residuals, rms
 from .._rotation import quaternion_vector_to_matrix
 from .._status import Status
 
@@ -120,7 +120,7 @@ def nonlinear(
     world = transform(pose, obs.model)
     error = rms(pixel_residuals(world, obs), obs.mask)
     finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(y))
-    in_front = jnp.all(jnp.where(obs.mask, depths(world, obs) > 0, True))
+    front = in_front(world, obs)
     # Converged means stationary: the residual is orthogonal to every Jacobian column
     # (MINPACK's gtol test). optimistix tests termination only on accepted steps, and at
     # machine precision its trust region may reject every step and run out of steps
@@ -134,7 +134,7 @@ def nonlinear(
     )
     converged = stopped & stationary
     status = jnp.select(
-        [jnp.sum(obs.mask) < 3, ~finite, ~in_front, ~converged],
+        [jnp.sum(obs.mask) < 3, ~finite, ~front, ~converged],
         [
             Status.TOO_FEW_POINTS,
             Status.NOT_FINITE,
