@@ -23,6 +23,7 @@ __all__ = [
     "cross_prism",
     "default_bench",
     "random_rotation",
+    "random_rotations",
     "random_scene",
 ]
 
@@ -201,17 +202,23 @@ def default_bench(seed: int = 0, noise: float = DEFAULT_NOISE) -> Bench:
     )
 
 
+def random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
+    """`n` rotation matrices `(n, 3, 3)` drawn uniformly (normalised Gaussian quaternions)."""
+    q = rng.normal(size=(n, 4))
+    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
     """A rotation matrix drawn uniformly (from a normalised Gaussian quaternion)."""
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return random_rotations(rng, 1)[0]
 
 
 def random_scene(

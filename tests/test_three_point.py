@@ -14,6 +14,7 @@ import pytest
 from hypothesis import assume, example, given
 from hypothesis import strategies as st
 
+from jaxpose._bench import random_rotations
 from jaxpose._solver.p3p import ThreePointResult, p3p, three_point
 from jaxpose._status import Status
 
@@ -23,20 +24,6 @@ SMALL = 64  # three_point batches
 
 _p3p_batch = jax.jit(jax.vmap(p3p))
 _three_point_batch = jax.jit(jax.vmap(three_point))
-
-
-def _rotations(rng, n):
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
 
 
 def _collinearity(pts):
@@ -67,7 +54,7 @@ def instances(rng, n):
         depth = rng.uniform(2, 10, size=(b, 3, 1))
         rays = np.concatenate([uv, np.ones((b, 3, 1))], -1) @ np.linalg.inv(K).T
         pc = rays * depth
-        R = _rotations(rng, b)
+        R = random_rotations(rng, b)
         t = rng.normal(size=(b, 3))
         m = np.einsum("bji,bnj->bni", R, pc - t[:, None])
         keep = (_image_area(uv) >= 40) & (_collinearity(m) >= 1e-2)
@@ -236,7 +223,7 @@ def test_p3p_property(quat, trans, rays, depths):
 
 def _camera(rng, scale):
     """C = scale K [Rc | tc], a world-to-camera pose looking at the origin region."""
-    Rc = _rotations(rng, 1)[0]
+    Rc = random_rotations(rng, 1)[0]
     centre = rng.normal(size=3) * 3
     tc = -Rc @ centre
     return scale * K @ np.concatenate([Rc, tc[:, None]], 1), Rc, tc
@@ -250,7 +237,7 @@ def _scene(rng, scale):
         depth = rng.uniform(2, 10, size=(3, 1))
         pc = np.concatenate([uv, np.ones((3, 1))], 1) @ np.linalg.inv(K).T * depth
         pw = (pc - tc) @ Rc  # world points
-        R = _rotations(rng, 1)[0]
+        R = random_rotations(rng, 1)[0]
         t = rng.normal(size=3)
         m = (pw - t) @ R  # model points: pw = R m + t
         if _image_area(uv[None])[0] > 40 and _collinearity(m[None])[0] > 1e-2:
