@@ -190,7 +190,18 @@ def _buffered(fn, need, priority, k, *args):
         slots = jnp.arange(T)
     else:
         _, slots = jax.lax.top_k(-jnp.where(need, priority, big), k)
-    out = jax.vmap(fn)(*(jax.tree.map(lambda x: x[slots], a) for a in args))
+    gathered = [jax.tree.map(lambda x: x[slots], a) for a in args]
+
+    def run(gathered):
+        return jax.vmap(fn)(*gathered)
+
+    def skip(gathered):
+        shapes = jax.eval_shape(run, gathered)
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+    # Nothing needs it (the common case on good data): skip the buffer altogether. (Under
+    # an outer `vmap` over problems this becomes a select and both branches run.)
+    out = jax.lax.cond(jnp.any(need), run, skip, gathered)
     where = jnp.zeros(T, jnp.int32).at[slots].set(jnp.arange(slots.shape[0], dtype=jnp.int32))
     in_buffer = jnp.zeros(T, dtype=bool).at[slots].set(True) & need
     return jax.tree.map(lambda x: x[where], out), in_buffer

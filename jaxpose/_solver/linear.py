@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from .._linalg import cholesky_solve
 from .._pose import Observations, Pose, transform
 from .._residuals import depths, in_front, pixel_residuals, plane_residuals, rms, safe_inverse_depth
 from .._rotation import rotvec_to_matrix
@@ -88,15 +89,13 @@ def linear_step(pose: Pose, obs: Observations, weighting: str = "depth"):
     w = jnp.where(obs.mask, w, 0)
     A = (rows * w[:, None, None]).reshape(-1, 6)
     b = (rhs * w[:, None]).reshape(-1)
-    # Column equilibration, then the 6x6 normal equations (a tiny ridge keeps a
-    # rank-deficient system finite; such problems are flagged by the caller).
+    # Column equilibration, then the 6x6 normal equations by an unrolled Cholesky (its
+    # pivot floor keeps a rank-deficient system finite; such problems are flagged by the
+    # caller).
     scale = jnp.sqrt(jnp.sum(A * A, axis=0))
     scale = jnp.where(scale > 0, scale, 1)
     As = A / scale[None, :]
-    AtA = As.T @ As
-    eps = jnp.finfo(AtA.dtype).eps
-    AtA = AtA + eps * jnp.trace(AtA) * jnp.eye(6, dtype=AtA.dtype)
-    x = jnp.linalg.solve(AtA, As.T @ b) / scale
+    x = cholesky_solve(As.T @ As, As.T @ b) / scale
     x = jnp.where(jnp.isfinite(x), x, 0)
     dt, r = x[:3], x[3:]
     Rr = rotvec_to_matrix(r)
