@@ -12,9 +12,17 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._camera import camera_matrix, undistort_pixels
+from ._covariance import _chart_at, _chart_pose, _chart_residuals, _symmetric_pinv
 from ._errors import pose_error
-from ._mixed import best_triplet, initial_poses, mixed_from_initial, triplet_indices
-from ._pose import Pose, observations
+from ._mixed import (
+    best_triplet,
+    initial_poses,
+    mixed_from_initial,
+    spread_triplets,
+    triplet_indices,
+)
+from ._pose import Observations, Pose, observations, transform
+from ._residuals import pixel_residuals, rms
 from ._rotation import matrix_to_rotvec
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
@@ -53,6 +61,15 @@ def _check_method(method: str) -> None:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
 
 
+def _check_budget(triplet_budget: int | None) -> None:
+    if triplet_budget is None:
+        return
+    if isinstance(triplet_budget, bool) or not isinstance(triplet_budget, (int, np.integer)):
+        raise ValueError(f"triplet_budget must be a positive int or None, got {triplet_budget!r}")
+    if triplet_budget < 1:
+        raise ValueError(f"triplet_budget must be >= 1, got {triplet_budget}")
+
+
 def solve(
     camera: Float[Array, "3 4"],
     model: Float[Array, "n 3"],
@@ -68,6 +85,7 @@ def solve(
     nonlinear_budget: int | None = 32,
     max_steps: int = 50,
     max_triplets: int | None = 2000,
+    triplet_budget: int | None = None,
 ) -> Solution:
     """Recover the pose of a known object from one calibrated image (JAX-native).
 
@@ -88,20 +106,35 @@ def solve(
     - `linear_iterations`, `nonlinear_budget`, `max_steps`: see `jaxpose.mixed`.
     - `max_triplets`: above this many triplets (`C(n, 3)`; n = 24 gives 2024) a fixed
       seeded sample of this many is used instead of all (`jaxpose.triplet_indices`).
+    - `triplet_budget`: solve only this many triplets, the ones with the largest image
+      triangles (`jaxpose.spread_triplets`): the fast path for large batches of easy
+      problems (`None`: all of them).
 
-    **Returns:** a `Solution`. Gradients: the discrete choices (triplet, root, branch)
-    carry none; the pose is differentiable through the optimality conditions of Eq. 8 at
-    the answer (implicit function theorem), for the three optimising methods.
+    **Returns:** a `Solution`.
+
+    **Gradients** (`jax.grad`, `jax.jacfwd`, `jax.jacrev`, under `jit` and `vmap`): for
+    the three optimising methods, `pose` (and `error`, `pose_error`) are differentiable
+    with respect to `camera`, `model` and `image` through the optimality conditions of
+    Eq. 8 at the answer (implicit function theorem, the full Hessian: exact first
+    derivatives, not an unrolled iteration; see `_polish`). The discrete choices (triplet,
+    root, branch, acceptance) carry none. A problem with no accepted pose returns its
+    placeholder with a zero gradient; `method="three_point"` gives no gradient to the pose.
     """
     _check_method(method)
+    _check_budget(triplet_budget)
     obs = observations(camera, model, image, mask)
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
+    candidates = triplet_indices(obs.model.shape[0], max_triplets)
+    rows = jnp.arange(candidates.shape[0])
+    triplets = candidates
+    if triplet_budget is not None and triplet_budget < candidates.shape[0]:
+        rows, triplets = spread_triplets(jax.lax.stop_gradient(obs), candidates, triplet_budget)
     initial = initial_poses(
         jax.lax.stop_gradient(obs),
         min_area=min_area,
         collinear_tol=collinear_tol,
-        triplets=triplet_indices(obs.model.shape[0], max_triplets),
+        triplets=triplets,
     )
     sobs = jax.lax.stop_gradient(obs)
     usable = initial.status == Status.OK
@@ -140,41 +173,85 @@ def solve(
     index, accepted = best_triplet(error, status)
     pose = Pose(poses.R[index], poses.t[index])
     pose = jax.tree.map(lambda a, b: jnp.where(accepted, a, b), pose, Pose.identity(dtype))
+    error = jnp.where(accepted, error[index], jnp.where(error[index] < big, error[index], 0))
     if method != "three_point":
         pose = _polish(obs, pose, accepted)
+        final = rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
+        error = jnp.where(accepted, final, error)
     return Solution(
         pose=pose,
-        error=jnp.where(accepted, error[index], jnp.where(error[index] < big, error[index], 0)),
+        error=error,
         pose_error=pose_error(obs.camera, pose.R, pose.t, obs.model, obs.image, obs.mask),
         status=status[index].astype(jnp.int32),
         accepted=accepted,
-        triplet=index.astype(jnp.int32),
+        triplet=rows[index].astype(jnp.int32),
     )
 
 
-def _polish(obs, pose: Pose, accepted) -> Pose:
-    """Attach implicit gradients: one Levenberg-Marquardt solve from the (converged,
-    gradient-free) answer; optimistix differentiates its optimum by the implicit function
-    theorem. The value is the answer's own (to solver tolerance)."""
-    start = jax.lax.stop_gradient(pose)
-    refined = nonlinear(obs, start, max_steps=8).pose
-    delta = jax.tree.map(lambda a, b: a - jax.lax.stop_gradient(a), refined, start)
-    # Value: the answer itself; derivative: the implicit one (zero when not accepted).
-    return jax.tree.map(lambda s, d: s + jnp.where(accepted, d, 0), start, delta)
+def _polish(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+    """The answer, polished by Newton steps, with the implicit derivative attached.
+
+    In the chart `xi = (w, u)` around the (gradient-free) answer `(R^, t^)` of
+    `jaxpose._covariance` (`R = exp(hat(w)) R^`, rotation about the centroid of the world
+    points, translation scaled by their RMS radius), let `f(xi, theta) = |r(xi, theta)|^2 / 2`
+    be Eq. 8's cost, `theta` the camera, model and image, `g = df/dxi`, `H = d^2f/dxi^2`
+    (the full Hessian, not Gauss-Newton's). At the optimum `g(0, theta) = 0`, so by the
+    implicit function theorem
+
+        dxi*/dtheta = -H^-1 dg/dtheta.
+
+    That is the derivative of the Newton step `xi = -H^-1 g(0, theta)` with `H` held
+    constant. Two Newton steps are taken from the answer (each only when `H` is positive
+    definite and the step is below `1e-3`, rad and object radii: at a converged answer they
+    move the pose by rounding, and they finish a pose that a solver left within its
+    tolerance, e.g. `1e-6` from Levenberg-Marquardt), the second carrying exactly the
+    implicit derivative. A singular `H` (a pose the matches do not determine) uses the
+    pseudo-inverse. Not accepted: the answer with a zero derivative. First derivatives
+    only (`H` carries none).
+    """
+    sobs = jax.lax.stop_gradient(obs)
+    start = _newton(sobs, jax.lax.stop_gradient(pose), accepted)
+    return _newton(obs, jax.lax.stop_gradient(start), accepted)
+
+
+def _newton(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+    """One guarded Newton step of Eq. 8 from `pose` (no derivative w.r.t. `pose`); its
+    derivative w.r.t. `obs` is the implicit one (see `_polish`)."""
+    sobs = jax.lax.stop_gradient(obs)
+    chart = _chart_at(pose, sobs)
+    zero = jnp.zeros(6, pose.t.dtype)
+
+    def cost(xi, o):
+        r = _chart_residuals(xi, chart, o)
+        return 0.5 * jnp.sum(r * r)
+
+    g = jax.grad(cost)(zero, obs)
+    H = jax.hessian(cost)(zero, sobs)
+    H_inv, _, positive = _symmetric_pinv(H)
+    step = -(H_inv @ g)
+    value = jax.lax.stop_gradient(step)
+    # Taken only within the quadratic convergence region of a minimum: H positive definite
+    # (so the step descends) and a step below 1e-3 (rad, object radii). The cost itself is
+    # no judge there: its rounding (~eps times the plane terms, not the cost) exceeds the
+    # decrease of a 1e-11 step.
+    local = jnp.all(jnp.abs(value) < 1e-3) & jnp.all(jnp.isfinite(value))
+    xi = jnp.where(positive & local, value, 0) + (step - value)
+    return _chart_pose(jnp.where(accepted, xi, 0), chart)
 
 
 # --------------------------------------------------------------------------- cv2-style
 
 
-@functools.partial(jax.jit, static_argnames=("method",))
-def _solve_opencv(K, obj, img, method):
+@functools.partial(jax.jit, static_argnames=("method", "triplet_budget"))
+def _solve_opencv(K, obj, img, method, triplet_budget=None):
     C = camera_matrix(K)
-    sol = solve(C, obj, img, method=method)
+    sol = solve(C, obj, img, method=method, triplet_budget=triplet_budget)
     return sol.accepted, matrix_to_rotvec(sol.pose.R), sol.pose.t
 
 
 _batched_opencv = jax.jit(
-    jax.vmap(_solve_opencv.__wrapped__, in_axes=(None, 0, 0, None)), static_argnames=("method",)
+    jax.vmap(_solve_opencv.__wrapped__, in_axes=(None, 0, 0, None, None)),
+    static_argnames=("method", "triplet_budget"),
 )
 
 
@@ -209,7 +286,15 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
     return K, obj, img
 
 
-def solve_pnp(object_points, image_points, camera_matrix, dist_coeffs=None, *, method="mixed"):
+def solve_pnp(
+    object_points,
+    image_points,
+    camera_matrix,
+    dist_coeffs=None,
+    *,
+    method="mixed",
+    triplet_budget=None,
+):
     """Drop-in for `cv2.solvePnP`: the pose of the object in the camera frame.
 
     Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
@@ -218,9 +303,10 @@ def solve_pnp(object_points, image_points, camera_matrix, dist_coeffs=None, *, m
 
     **Returns:** `(ok, rvec, tvec)` with `rvec`, `tvec` of shape `(3, 1)`: `x_cam =
     Rodrigues(rvec) X + tvec`. `ok` is False (with finite placeholders) when no pose is
-    accepted. `method`: see `jaxpose.solve`.
+    accepted. `method`, `triplet_budget`: see `jaxpose.solve`.
     """
     _check_method(method)
+    _check_budget(triplet_budget)
     K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, False)
     with jax.enable_x64(True):
         ok, rvec, tvec = _solve_opencv(
@@ -228,28 +314,49 @@ def solve_pnp(object_points, image_points, camera_matrix, dist_coeffs=None, *, m
             jnp.asarray(obj, jnp.float64),
             jnp.asarray(img, jnp.float64),
             method,
+            triplet_budget,
         )
         ok, rvec, tvec = bool(ok), np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
     return ok, rvec.reshape(3, 1), tvec.reshape(3, 1)
 
 
 def solve_pnp_batch(
-    object_points, image_points, camera_matrix, dist_coeffs=None, *, method="mixed"
+    object_points,
+    image_points,
+    camera_matrix,
+    dist_coeffs=None,
+    *,
+    method="mixed",
+    triplet_budget=None,
+    chunk_size=None,
+    devices=None,
 ):
     """`B` independent problems of equal `n` in one compiled call (float64).
 
     **Arguments:** `object_points` `(B, n, 3)` or shared `(n, 3)`; `image_points`
     `(B, n, 2)`; one `camera_matrix` and `dist_coeffs` for all.
 
+    `triplet_budget`: solve only this many well-spread triplets per problem (see
+    `jaxpose.solve`); the exhaustive `C(n, 3)` costs `n^3` per problem.
+
+    `chunk_size`: at most this many problems per compiled call (bounded memory; `None`:
+    all at once); `devices`: the batch is split over these (`None`: all of
+    `jax.devices()`; an int: the first ones); see `jaxpose.run_batched`.
+
     **Returns:** `(ok (B,), rvecs (B, 3), tvecs (B, 3))`, OpenCV's conventions.
     """
     _check_method(method)
+    _check_budget(triplet_budget)
     K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
+    from ._batch import run_batched
+
     with jax.enable_x64(True):
-        ok, rvecs, tvecs = _batched_opencv(
-            jnp.asarray(K, jnp.float64),
-            jnp.asarray(obj, jnp.float64),
-            jnp.asarray(img, jnp.float64),
-            method,
+        ok, rvecs, tvecs = run_batched(
+            _batched_opencv,
+            (np.asarray(K, np.float64),),
+            (np.asarray(obj, np.float64), np.asarray(img, np.float64)),
+            static=(method, triplet_budget),
+            chunk_size=chunk_size,
+            devices=devices,
         )
         return np.asarray(ok), np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64)

@@ -31,6 +31,11 @@ class Status(enum.IntEnum):
     TOO_FEW_POINTS = 10
     NOT_FINITE = 11
     NOT_ATTEMPTED = 12
+    NO_FACE = 13
+    UNREACHABLE = 14
+    JOINT_LIMITS = 15
+    COPLANAR_POINTS = 16
+    UNDETERMINED_CAMERA = 17
 
     @property
     def message(self) -> str:
@@ -64,6 +69,14 @@ _MESSAGES = {
     Status.TOO_FEW_POINTS: "fewer valid matches than the method needs",
     Status.NOT_FINITE: "non-finite values in the input or during solving",
     Status.NOT_ATTEMPTED: "needed Levenberg-Marquardt but was outside the non-linear budget",
+    Status.NO_FACE: "the visual ray of the pixel meets none of the object's faces",
+    Status.UNREACHABLE: "the target is outside the robot's workspace: no joint values put "
+    "the shank tip there",
+    Status.JOINT_LIMITS: "the shank tip reaches the target only with joints outside their limits",
+    Status.COPLANAR_POINTS: "the 3D points are (nearly) coplanar: they do not determine a 3x4 "
+    "camera matrix",
+    Status.UNDETERMINED_CAMERA: "the 3D-2D pairs do not determine the camera matrix (the DLT "
+    "system has more than one null direction)",
 }
 
 

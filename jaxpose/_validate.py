@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "as_batched",
     "as_camera",
     "as_dist_coeffs",
     "as_intrinsics",
@@ -217,3 +218,55 @@ def as_matching(object_points, image_points, *, min_count=1):
             f"{obj.shape[0]} points, image_points has {img.shape[0]}"
         )
     return obj, img
+
+
+def as_batched(x, name, tail, *, batch_size=None, count=None, shared=True, min_count=3):
+    """Validate a batch of arrays `(B, *tail)`, or one array `tail` shared by the batch.
+
+    Values are not checked for finiteness: in a batch, a problem with NaN or inf is
+    reported by its status (`NOT_FINITE`), not by an exception for all of them.
+
+    **Arguments:**
+
+    - `x`: array-like.
+    - `name`: the argument's name, used in error messages.
+    - `tail`: the shape of one item: an int `dim` for points `(n, dim)` (any `n >=
+      min_count`, or exactly `count`), or a tuple, e.g. `(3, 4)` for a camera.
+    - `batch_size`: the batch size `B` the leading axis must have (`None`: any `B >= 1`).
+    - `count`: the number of points `n` required (points only).
+    - `shared`: whether one unbatched item (`tail` alone) is accepted.
+    - `min_count`: the fewest points accepted (points only).
+
+    **Returns:**
+
+    numpy array `(B, *tail)` or `tail`: float32 if given float32, else float64.
+
+    **Raises:**
+
+    `ValueError` naming `name` for a wrong shape or a non-real dtype.
+    """
+    arr = _as_real_array(x, name)
+    points = isinstance(tail, (int, np.integer))
+    rank = 2 if points else len(tail)
+    if points:
+        want = f"(n, {tail})" if count is None else f"({count}, {tail})"
+    else:
+        want = str(tuple(tail))
+    batch = "B" if batch_size is None else str(batch_size)
+    expected = f"({batch}, {want[1:]}" + (f" or {want}" if shared else "")
+    if arr.ndim == rank + 1:
+        item = arr.shape[1:]
+        if arr.shape[0] < 1 or (batch_size is not None and arr.shape[0] != batch_size):
+            raise ValueError(f"{name} must have shape {expected}, got {arr.shape}")
+    elif arr.ndim == rank and shared:
+        item = arr.shape
+    else:
+        raise ValueError(f"{name} must have shape {expected}, got {arr.shape}")
+    if points:
+        if item[1] != tail or (count is not None and item[0] != count):
+            raise ValueError(f"{name} must have shape {expected}, got {arr.shape}")
+        if item[0] < min_count:
+            raise ValueError(f"{name} needs at least {min_count} points, got {item[0]}")
+    elif tuple(item) != tuple(tail):
+        raise ValueError(f"{name} must have shape {expected}, got {arr.shape}")
+    return arr

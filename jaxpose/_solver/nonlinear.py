@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
+from .._linalg import NormalCholesky
 from .._pose import Observations, Pose, transform
 from .._residuals import in_front, pixel_residuals, rms
 from .._rotation import quaternion_vector_to_matrix
@@ -58,7 +59,7 @@ class _TrustRegion(optx.ClassicalTrustRegion):
 
 
 def _solver(rtol, atol):
-    lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=NormalCholesky())
     return eqx.tree_at(lambda s: s.search, lm, _TrustRegion())
 
 

@@ -1,0 +1,141 @@
+"""Cost of the backward pass through `jaxpose.solve`: forward alone against forward and
+backward, on batches of default-bench problems.
+
+Each problem is the default bench (the cross prism 2 m from a 25 mm camera, 16 matches,
+all C(16, 3) = 560 triplets through the mixed algorithm) with its own seeded pixel noise
+(0.8 px). The loss of one problem is a smooth function of the recovered pose,
+
+    loss = |t - t_true|^2 + |R - R_true|_F^2 * (100 mm)^2,
+
+and the two compiled functions timed are
+
+    forward:            jax.jit(jax.vmap(loss))(cameras, models, images)
+    forward + backward: jax.jit(jax.vmap(jax.value_and_grad(loss, argnums=(0, 1, 2))))
+
+(gradients with respect to the camera matrix, the model points and the image points).
+Each is compiled first (a warm-up call, not timed) and then timed `--repeat` times; the
+table reports the best and the median. The ratio `backward / forward` is
+`(forward+backward - forward) / forward`; the design target is <= 2.
+
+    python benchmarks/gradients.py --batch 64 1024 --repeat 5
+
+Prints a table and writes JSON to benchmarks/results/gradients.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def problems(batch: int):
+    """`batch` default-bench problems, one noise seed each: (cameras, models, images,
+    true R, true t), numpy float64."""
+    import jaxpose as jp
+
+    benches = [jp.default_bench(seed=s) for s in range(batch)]
+    stack = lambda name: np.stack([getattr(b, name) for b in benches])
+    return tuple(stack(n) for n in ("camera", "model_points", "image_points", "R", "t"))
+
+
+def _timed(fn, args, repeat: int) -> tuple[float, list[float]]:
+    """Compile-and-run time of the first call, then the times of `repeat` calls."""
+    import jax
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return first, times
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, nargs="+", default=[64, 1024])
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args(argv)
+
+    import jax
+    import jax.numpy as jnp
+
+    jax.config.update("jax_enable_x64", True)  # this script's own choice
+    import jaxpose as jp
+
+    def loss(camera, model, image, R_true, t_true):
+        pose = jp.solve(camera, model, image).pose
+        return jnp.sum((pose.t - t_true) ** 2) + 1e4 * jnp.sum((pose.R - R_true) ** 2)
+
+    forward = jax.jit(jax.vmap(loss))
+    both = jax.jit(jax.vmap(jax.value_and_grad(loss, argnums=(0, 1, 2))))
+
+    rows = []
+    for B in args.batch:
+        data = tuple(jnp.asarray(x) for x in problems(B))
+        c_fwd, t_fwd = _timed(forward, data, args.repeat)
+        c_both, t_both = _timed(both, data, args.repeat)
+        value, grads = both(*data)
+        finite = bool(all(np.all(np.isfinite(np.asarray(g))) for g in grads))
+        same = float(np.max(np.abs(np.asarray(value) - np.asarray(forward(*data)))))
+        fwd, fb = min(t_fwd), min(t_both)
+        rows.append(
+            {
+                "batch": B,
+                "forward_s": {"best": fwd, "median": statistics.median(t_fwd), "all": t_fwd},
+                "forward_backward_s": {
+                    "best": fb,
+                    "median": statistics.median(t_both),
+                    "all": t_both,
+                },
+                "first_call_s": {"forward": c_fwd, "forward_backward": c_both},
+                "backward_over_forward": (fb - fwd) / fwd,
+                "forward_backward_over_forward": fb / fwd,
+                "per_problem_ms": {"forward": 1e3 * fwd / B, "forward_backward": 1e3 * fb / B},
+                "gradients_finite": finite,
+                "loss_max_difference": same,
+            }
+        )
+
+    head = (
+        f"{'batch':>6} {'forward (s)':>12} {'fwd+bwd (s)':>12} {'backward/forward':>17}"
+        f" {'ms/problem fwd':>15} {'ms/problem f+b':>15}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        fwd, fb, ms = r["forward_s"]["best"], r["forward_backward_s"]["best"], r["per_problem_ms"]
+        print(
+            f"{r['batch']:>6} {fwd:>12.3f} {fb:>12.3f} {r['backward_over_forward']:>17.2f}"
+            f" {ms['forward']:>15.2f} {ms['forward_backward']:>15.2f}"
+        )
+    result = {
+        "benchmark": "forward vs forward+backward through jaxpose.solve (mixed, default bench)",
+        "loss": "|t - t_true|^2 + 1e4 |R - R_true|_F^2, grad w.r.t. camera, model, image",
+        "repeat": args.repeat,
+        "dtype": "float64",
+        "device": str(jax.devices()[0]),
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "jax": jax.__version__,
+        "rows": rows,
+    }
+    out = args.out or Path(__file__).parent / "results" / "gradients.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    print(f"wrote {out}")
+    return result
+
+
+if __name__ == "__main__":
+    main()
