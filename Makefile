@@ -21,11 +21,11 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 bench: $(STAMP)
-	$(BIN)/jaxpose bench --repeat 20
+	$(BIN)/python benchmarks/run.py
 	$(BIN)/python benchmarks/p3p_rate.py --n 100000
 
 bench-quick: $(STAMP)
-	$(BIN)/jaxpose bench --repeat 5
+	$(BIN)/python benchmarks/run.py --quick
 	$(BIN)/python benchmarks/p3p_rate.py --n 20000 --out /tmp/p3p_rate_quick.json
 
 lint: $(STAMP)

@@ -80,7 +80,7 @@ OPENCV_FLAGS = {
 ML = "ML optimum"
 ABS_TOL = 1e-6  # px: "at the optimum" when within this of the ML optimum's RMS error
 REL_TOL = 1e-9  # the stricter relative criterion, reported beside it
-LOCAL_MINIMUM = 1e-3  # px above the optimum: a different minimum, not rounding
+LOCAL_MINIMUM = 1e-3  # px above the optimum: another stationary point or an unrefined answer
 REFINE_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 200, 1e-15)
 POSELIB_THRESHOLD = 1e4  # px: every match is an inlier, so the answer is least squares
 MAX_REPRODUCERS = 5  # per kind and jaxpose method
@@ -124,20 +124,21 @@ class Schedule:
 def default_schedule(quick: bool, trials: int | None = None) -> Schedule:
     """The schedule of `--quick` (about 50 trials per cell) or of the full run (500).
 
-    Measured per-problem cost of `solve_pnp_batch` (float64, 2-core CPU shared with other
-    work): mixed 0.08 s at n = 10, 0.17 s at n = 20, 0.66 s at n = 50, 2.3 s at n = 200;
-    non-linear 0.17 s at n = 10 and 7 s at n = 50. The large-n caps keep the full run
-    near half an hour there."""
+    Measured per-problem cost of `solve_pnp_batch` (float64, warm, on the 2-core CPU this
+    was developed on, shared with other work): mixed 0.01-0.05 s at n = 10, 0.2 s at
+    n = 20, 0.5-0.7 s at n = 50, 1.1-1.4 s at n = 100, 1.5-3 s at n = 200; non-linear
+    0.11 s at n = 10, 1.6 s at n = 20 and 7 s at n = 50 (LM on every triplet). The caps
+    keep the full run near 25 minutes of solving there (compilation apart)."""
     if quick:
         base = 50 if trials is None else trials
         large_n = {20: 50, 50: 20, 100: 10, 200: 5}
         few = {50: 5, 100: 5, 200: 5}
-        nonlinear = {n: 20 for n in (4, 6, 10)} | {20: 5, 50: 0, 100: 0, 200: 0}
+        nonlinear = {n: 20 for n in (4, 6, 10)} | {20: 10, 50: 0, 100: 0, 200: 0}
     else:
         base = 500 if trials is None else trials
         large_n = {20: 200, 50: 60, 100: 30, 200: 15}
-        few = {50: 20, 100: 15, 200: 10}
-        nonlinear = {n: 100 for n in (4, 6, 10)} | {20: 20, 50: 0, 100: 0, 200: 0}
+        few = {50: 20, 100: 10, 200: 5}
+        nonlinear = {n: 100 for n in (4, 6, 10)} | {20: 50, 50: 0, 100: 0, 200: 0}
     return Schedule(
         trials=base,
         large_n=large_n,
@@ -432,6 +433,31 @@ def reproducer(cell: Cell, i: int, name: str, ans: Answers, ml: Answers, ml_err,
     }
 
 
+def diagnose(rep: dict) -> dict:
+    """`jaxpose.solve` (mixed, float64) on a reproducer: the status of its answer (why no
+    pose was accepted, or which step accepted a pose off the optimum) and its error."""
+    import jax
+    import jax.numpy as jnp
+
+    K = np.asarray(rep["K"])
+    C = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+    with jax.enable_x64(True):
+        sol = jax.jit(jp.solve)(
+            jnp.asarray(C, jnp.float64),
+            jnp.asarray(rep["object_points"], jnp.float64),
+            jnp.asarray(rep["image_points"], jnp.float64),
+        )
+        status = jp.Status(int(sol.status))
+        return {
+            "accepted": bool(sol.accepted),
+            "status": status.name,
+            "message": status.message,
+            "error_px": float(sol.error),
+            "error_minus_ml_px": float(sol.error) - rep["ml_rms_px"],
+            "triplet": int(sol.triplet),
+        }
+
+
 def run_cell(
     cell: Cell,
     schedule: Schedule,
@@ -683,6 +709,10 @@ def run(
                 "values": [c[sweep] for c in results],
                 "cells": results,
             }
+    for rep in reproducers:
+        if rep["method"] == jaxpose_name("mixed"):
+            say(f"diagnosing a miss of jaxpose mixed ({rep['kind']}, n={rep['n']})")
+            rep["jaxpose_solve"] = diagnose(rep)
     optimum = at_optimum(cells.values(), kinds)
     result = {
         "benchmark": "accuracy",
@@ -772,9 +802,20 @@ def _table_rows(result: dict, kind: str, sweep: str):
                 cells.append("-")
                 continue
             rot, tr = row["rotation_deg"]["median"], row["translation_pct"]["median"]
-            cells.append("-" if rot is None else f"{rot:.3f} / {tr:.3f}")
+            text = "-" if rot is None else f"{rot:.3f} / {tr:.3f}"
+            if row["trials"] != cell["trials"]:
+                text += f" [{row['trials']}]"
+            if row["failed"]:
+                text += f" ({row['failed']} failed)"
+            cells.append(text)
         rows.append((name, cells))
     return header, rows
+
+
+LEGEND = (
+    "[k]: over the first k trials of the cell only; (f failed): no pose returned (left "
+    "out of the medians); -: not run"
+)
 
 
 def _optimum_cell(acc: dict | None) -> str:
@@ -782,9 +823,12 @@ def _optimum_cell(acc: dict | None) -> str:
         return "-"
     share = 100 * acc["share_abs"]
     text = f"{share:.2f}% ({acc['at_optimum_abs']}/{acc['trials']})"
+    notes = []
+    if acc["failed"]:
+        notes.append(f"{acc['failed']} failed")
     if acc["local_minima"]:
-        text += f", {acc['local_minima']} local min."
-    return text
+        notes.append(f"{acc['local_minima']} > {LOCAL_MINIMUM:g} px above")
+    return text + "".join(f", {x}" for x in notes)
 
 
 def print_tables(result: dict, console) -> None:
@@ -802,6 +846,8 @@ def print_tables(result: dict, console) -> None:
                 title=f"{kind}, {fixed}: median rotation error (deg) / translation error (%)"
                 f"\ntrials per cell: {trials}",
                 title_justify="left",
+                caption=LEGEND,
+                caption_justify="left",
             )
             table.add_column(f"method \\ {label}")
             for h in header:
@@ -868,7 +914,7 @@ def markdown(result: dict) -> str:
             trials = ", ".join(str(c["trials"]) for c in block["cells"])
             lines += [
                 f"**{kind.replace('_', '-')}, {fixed}**: median rotation error (deg) / "
-                f"translation error (%); trials per cell: {trials}",
+                f"translation error (%); trials per cell: {trials}. {LEGEND}.",
                 "",
                 f"| method \\ {label} | " + " | ".join(header) + " |",
                 "|---|" + "---|" * len(header),
@@ -918,7 +964,8 @@ def markdown(result: dict) -> str:
 
 def plot(result: dict, out: Path, tag: str = "") -> list[Path]:
     """One figure per kind: median rotation and translation errors versus sigma (n = 10)
-    and versus n (sigma = 2 px), every method and the ML optimum."""
+    and versus n (sigma = 2 px), every method and the ML optimum (dashed, on top). A
+    method that ran on only a prefix of some cell's trials is drawn dotted and hollow."""
     from matplotlib.figure import Figure
 
     paths = []
@@ -930,18 +977,24 @@ def plot(result: dict, out: Path, tag: str = "") -> list[Path]:
                 continue
             block = sweeps[sweep]
             x = np.asarray(block["values"], float)
-            names = list(block["cells"][0]["methods"])
+            names = [m for m in block["cells"][0]["methods"] if m != ML] + [ML]
             for row, (metric, unit) in enumerate(
                 (("rotation_deg", "rotation error (deg)"), ("translation_pct", "translation (%)"))
             ):
                 ax = axes[row, col]
-                for name in names:
-                    y = []
+                for k, name in enumerate(names):
+                    y, partial = [], False
                     for cell in block["cells"]:
                         r = cell["methods"].get(name, {})
                         v = r.get(metric, {}).get("median") if r.get("trials") else None
                         y.append(np.nan if v is None else v)
-                    style = {"color": "black", "ls": "--", "lw": 2} if name == ML else {}
+                        partial |= bool(r.get("trials")) and r["trials"] != cell["trials"]
+                    if name == ML:
+                        style = {"color": "black", "ls": "--", "lw": 2, "zorder": 10}
+                    else:
+                        style = {"color": f"C{k % 10}", "ls": ":" if partial else "-"}
+                        if partial:
+                            style["mfc"] = "none"
                     marker = "o" if name.startswith("jaxpose") else "s"
                     ax.plot(x, y, marker=marker, ms=4, label=name, **style)
                 if sweep == "n":
@@ -954,7 +1007,10 @@ def plot(result: dict, out: Path, tag: str = "") -> list[Path]:
                 ax.set_ylabel(f"median {unit}")
                 ax.grid(True, which="both", alpha=0.3)
         axes[0, 0].legend(fontsize=7, ncol=2)
-        fig.suptitle(f"{kind.replace('_', '-')} scenes: median errors ({result['mode']} run)")
+        fig.suptitle(
+            f"{kind.replace('_', '-')} scenes: median errors ({result['mode']} run; dotted, "
+            "hollow: a method run on the first trials of some cells only)"
+        )
         path = out / f"accuracy{tag}_{kind}.png"
         fig.savefig(path, dpi=110)
         paths.append(path)
@@ -987,7 +1043,21 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
     parser.add_argument("--no-images", action="store_true", help="skip the chessboard images")
     parser.add_argument("--markdown", default=None, help="also write the tables as Markdown")
+    parser.add_argument(
+        "--from-json", default=None, help="no run: tables and plots from a saved result"
+    )
     args = parser.parse_args(argv)
+    if args.from_json:
+        from rich.console import Console
+
+        path = Path(args.from_json)
+        result = json.loads(path.read_text())
+        tag = path.stem.removeprefix("accuracy")
+        plot(result, Path(args.out) if args.out else path.parent, tag)
+        print_tables(result, Console(width=None if sys.stdout.isatty() else 160))
+        if args.markdown:
+            Path(args.markdown).write_text(markdown(result))
+        return result
     if args.trials is not None and args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
     enable_compilation_cache()

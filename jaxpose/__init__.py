@@ -7,6 +7,7 @@ The public API is re-exported here; the implementation lives in private modules.
 from ._api import METHODS as METHODS
 from ._api import Solution as Solution
 from ._api import solve as solve
+from ._api import solve_many as solve_many
 from ._api import solve_pnp as solve_pnp
 from ._api import solve_pnp_batch as solve_pnp_batch
 from ._batch import batch_devices as batch_devices
@@ -47,6 +48,7 @@ from ._mixed import best_triplet as best_triplet
 from ._mixed import initial_poses as initial_poses
 from ._mixed import mixed as mixed
 from ._mixed import mixed_from_initial as mixed_from_initial
+from ._mixed import mixed_from_initial_batch as mixed_from_initial_batch
 from ._mixed import spread_triplets as spread_triplets
 from ._mixed import triplet_indices as triplet_indices
 from ._models import chessboard as chessboard

@@ -69,9 +69,10 @@ def test_ml_optimum_is_no_worse_than_its_starts(accuracy):
         assert np.all(err <= rms + 1e-9), name
 
 
+@pytest.mark.slow
 def test_run_on_a_tiny_grid(accuracy, tmp_path):
     # One cell per kind (n = 10, sigma = 2 px: both sweeps share it), mixed only: one
-    # compilation of solve_pnp_batch.
+    # compilation of solve_pnp_batch (most of this test's time).
     schedule = accuracy.Schedule(trials=6, large_n={}, ablation={})
     result = accuracy.run(
         True,

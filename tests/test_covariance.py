@@ -13,8 +13,15 @@ from hypothesis import strategies as st
 import jaxpose as jp
 from jaxpose._covariance import _symmetric_pinv
 
-
 covariance = jax.jit(lambda C, M, I, pose, sigma: jp.pose_covariance(C, M, I, pose, sigma=sigma))
+estimate = jax.jit(lambda C, M, I, pose, mask: jp.pose_covariance(C, M, I, pose, mask))
+
+
+@jax.jit
+def _estimate_and_grad(C, M, I, pose, mask):
+    """The estimated-sigma covariance and the gradient of its trace w.r.t. the image."""
+    trace = lambda img: jnp.trace(jp.pose_covariance(C, M, img, pose, mask).covariance)
+    return jp.pose_covariance(C, M, I, pose, mask), jax.grad(trace)(I)
 
 
 def _residuals_in_convention(xi, C, M, I, R_hat, t_hat):
@@ -26,8 +33,11 @@ def _residuals_in_convention(xi, C, M, I, R_hat, t_hat):
     return (h[:, :2] / h[:, 2:] - I).reshape(-1)
 
 
+_jacobian_in_convention = jax.jit(jax.jacfwd(_residuals_in_convention))
+
+
 def _reference_covariance(C, M, I, R, t, sigma):
-    J = jax.jacfwd(_residuals_in_convention)(jnp.zeros(6), C, M, I, R, t)
+    J = _jacobian_in_convention(jnp.zeros(6), C, M, I, R, t)
     J = np.asarray(J)
     return sigma**2 * np.linalg.inv(J.T @ J)
 
@@ -50,7 +60,7 @@ def test_convention_is_w_then_dt_about_the_given_pose():
 def test_sigma_estimate_is_rss_over_redundancy():
     rng = np.random.default_rng(1)
     s = jp.random_scene(rng, 9, noise=1.3)
-    out = jp.pose_covariance(s.camera, s.model_points, s.image_points, jp.Pose(s.R, s.t))
+    out = estimate(s.camera, s.model_points, s.image_points, jp.Pose(s.R, s.t), np.ones(9, bool))
     h = np.c_[s.model_points @ s.R.T + s.t, np.ones(9)] @ s.camera.T
     rss = np.sum((h[:, :2] / h[:, 2:] - s.image_points) ** 2)
     assert float(out.sigma) == pytest.approx(np.sqrt(rss / (2 * 9 - 6)), rel=1e-10)
@@ -113,22 +123,23 @@ def test_degenerate_inputs_are_finite():
     line = np.outer(np.linspace(-1, 1, 6), [1.0, 2.0, 0.5])  # all model points collinear
     h = np.c_[line @ s.R.T + s.t, np.ones(6)] @ s.camera.T
     on_line = h[:, :2] / h[:, 2:]
+    every = np.ones(6, bool)
     cases = {
-        "collinear": (s.camera, line, on_line, pose, None),
+        "collinear": (s.camera, line, on_line, pose, every),
         "three points": (s.camera, s.model_points, s.image_points, pose, np.arange(6) < 3),
         "no points": (s.camera, s.model_points, s.image_points, pose, np.zeros(6, bool)),
-        "zero camera": (np.zeros((3, 4)), s.model_points, s.image_points, pose, None),
-        "identity": (s.camera, s.model_points, s.image_points, jp.Pose.identity(), None),
+        "zero camera": (np.zeros((3, 4)), s.model_points, s.image_points, pose, every),
+        "identity": (s.camera, s.model_points, s.image_points, jp.Pose.identity(), every),
     }
+    results = {}
     for name, (C, M, I, P, mask) in cases.items():
-        out = jp.pose_covariance(C, M, I, P, mask)
-        for leaf in out:
+        results[name] = out, grad = _estimate_and_grad(C, M, I, P, mask)
+        for leaf in (*out, grad):
             assert np.all(np.isfinite(np.asarray(leaf))), name
-        grad = jax.grad(lambda img: jnp.trace(jp.pose_covariance(C, M, img, P, mask).covariance))
-        assert np.all(np.isfinite(np.asarray(grad(jnp.asarray(I))))), name
-    assert int(jp.pose_covariance(*cases["collinear"][:4]).rank) == 5  # roll about the line
-    three = jp.pose_covariance(*cases["three points"][:4], cases["three points"][4])
+    assert int(results["collinear"][0].rank) == 5  # the roll about the line is undetermined
+    three = results["three points"][0]
     assert float(three.sigma) == 0 and int(three.rank) == 6  # no redundancy to estimate it
+    assert np.all(np.asarray(results["no points"][0].covariance) == 0)
 
 
 def test_covariance_under_vmap_and_float32():
