@@ -1,0 +1,77 @@
+"""The batch-first path (`solve_many`, `mixed_from_initial_batch`, `triplet_budget`) and
+the unrolled linear algebra under it."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import jaxpose as jp
+from jaxpose._linalg import cholesky_solve
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 7), rank=st.integers(0, 7))
+def test_cholesky_solve_matches_numpy_and_stays_finite(seed, n, rank):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, min(rank, n)))
+    M = A @ A.T
+    full = min(rank, n) == n
+    if full:
+        M += 1e-3 * np.eye(n)
+    b = rng.normal(size=n)
+    x = np.asarray(cholesky_solve(jnp.asarray(M), jnp.asarray(b)))
+    assert np.all(np.isfinite(x))
+    if full:
+        np.testing.assert_allclose(x, np.linalg.solve(M, b), rtol=1e-7, atol=1e-9)
+
+
+def test_cholesky_solve_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="cholesky_solve"):
+        cholesky_solve(jnp.eye(3), jnp.ones(2))
+
+
+def test_spread_triplets_takes_the_largest_image_triangles():
+    bench = jp.default_bench(seed=0)
+    obs = jp.observations(bench.camera, bench.model_points, bench.image_points)
+    candidates = jp.triplet_indices(len(bench.model_points))
+    rows, chosen = jp.spread_triplets(obs, candidates, 10)
+    uv = np.asarray(bench.image_points)[candidates]
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    np.testing.assert_array_equal(np.sort(np.asarray(rows)), np.sort(np.argsort(-area)[:10]))
+    np.testing.assert_array_equal(np.asarray(chosen), candidates[np.asarray(rows)])
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, True])
+def test_triplet_budget_is_validated(bad):
+    bench = jp.default_bench(seed=0)
+    with pytest.raises(ValueError, match="triplet_budget"):
+        jp.solve_pnp(bench.model_points, bench.image_points, bench.K, triplet_budget=bad)
+
+
+def test_solve_many_equals_vmapped_solve():
+    rng = np.random.default_rng(7)
+    scenes = [jp.random_scene(rng, 8, noise=1.0, world_camera=False) for _ in range(6)]
+    C = jnp.asarray(scenes[0].camera)
+    M = jnp.asarray(np.stack([s.model_points for s in scenes]))
+    I = jnp.asarray(np.stack([s.image_points for s in scenes]))
+    # One problem with a match masked out, one with a non-finite pixel.
+    mask = jnp.ones(M.shape[:2], bool).at[1, 3].set(False)
+    I = I.at[2, 0, 0].set(jnp.nan)
+    kw = dict(triplet_budget=12, nonlinear_budget=4)
+    many = jax.jit(lambda M, I, m: jp.solve_many(C, M, I, m, **kw))(M, I, mask)
+    one = jax.jit(jax.vmap(lambda M, I, m: jp.solve(C, M, I, m, **kw)))(M, I, mask)
+    np.testing.assert_array_equal(np.asarray(many.status), np.asarray(one.status))
+    np.testing.assert_array_equal(np.asarray(many.accepted), np.asarray(one.accepted))
+    np.testing.assert_allclose(np.asarray(many.pose.R), np.asarray(one.pose.R), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(many.pose.t), np.asarray(one.pose.t), atol=1e-9)
+    assert not bool(many.accepted[2])
+    assert np.all(np.isfinite(np.asarray(many.pose.R)))
+    # The accepted poses are the truth up to the noise.
+    for b in (0, 1, 3, 4, 5):
+        assert bool(many.accepted[b])
+        err = jp.rotation_distance(many.pose.R[b], jnp.asarray(scenes[b].R))
+        assert float(err) < 0.05
