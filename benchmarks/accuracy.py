@@ -83,7 +83,7 @@ REL_TOL = 1e-9  # the stricter relative criterion, reported beside it
 LOCAL_MINIMUM = 1e-3  # px above the optimum: another stationary point or an unrefined answer
 REFINE_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 200, 1e-15)
 POSELIB_THRESHOLD = 1e4  # px: every match is an inlier, so the answer is least squares
-MAX_REPRODUCERS = 5  # per kind and jaxpose method
+MAX_REPRODUCERS = {"mixed": 25}  # per kind and jaxpose method (others: 3)
 
 
 def jaxpose_name(method: str) -> str:
@@ -124,21 +124,22 @@ class Schedule:
 def default_schedule(quick: bool, trials: int | None = None) -> Schedule:
     """The schedule of `--quick` (about 50 trials per cell) or of the full run (500).
 
-    Measured per-problem cost of `solve_pnp_batch` (float64, warm, on the 2-core CPU this
-    was developed on, shared with other work): mixed 0.01-0.05 s at n = 10, 0.2 s at
-    n = 20, 0.5-0.7 s at n = 50, 1.1-1.4 s at n = 100, 1.5-3 s at n = 200; non-linear
-    0.11 s at n = 10, 1.6 s at n = 20 and 7 s at n = 50 (LM on every triplet). The caps
-    keep the full run near 25 minutes of solving there (compilation apart)."""
+    Measured per-problem cost of `solve_pnp_batch` (float64, compiled, on the 2-core CPU
+    this was developed on, shared with other work): mixed 0.006-0.01 s at n = 10,
+    0.06-0.1 s at n = 20, 0.3-0.5 s at n = 50, 0.5-1.1 s at n = 100, 1-1.4 s at n = 200;
+    non-linear 0.04-0.06 s at n = 10, 0.8 s at n = 20 and about 7 s at n = 50 (LM on every
+    triplet). The caps keep the full run near 25 minutes of solving there; compiling the
+    28 programs comes on top (minutes; JAX's persistent cache removes it on a rerun)."""
     if quick:
         base = 50 if trials is None else trials
         large_n = {20: 50, 50: 20, 100: 10, 200: 5}
         few = {50: 5, 100: 5, 200: 5}
-        nonlinear = {n: 20 for n in (4, 6, 10)} | {20: 10, 50: 0, 100: 0, 200: 0}
+        nonlinear = {n: 20 for n in (4, 6, 10)} | {20: 25, 50: 0, 100: 0, 200: 0}
     else:
         base = 500 if trials is None else trials
-        large_n = {20: 200, 50: 60, 100: 30, 200: 15}
-        few = {50: 20, 100: 10, 200: 5}
-        nonlinear = {n: 100 for n in (4, 6, 10)} | {20: 50, 50: 0, 100: 0, 200: 0}
+        large_n = {50: 160, 100: 60, 200: 30}
+        few = {50: 60, 100: 20, 200: 10}
+        nonlinear = {n: 150 for n in (4, 6, 10)} | {20: 100, 50: 0, 100: 0, 200: 0}
     return Schedule(
         trials=base,
         large_n=large_n,
@@ -146,12 +147,14 @@ def default_schedule(quick: bool, trials: int | None = None) -> Schedule:
     )
 
 
-def chunk_size(n: int) -> int:
+def chunk_size(n: int, method: str = "mixed") -> int:
     """Problems per `solve_pnp_batch` call at `n` matches (a fixed shape: one compilation
     per `(n, method)`; the last chunk is padded). Bounded by memory: the linear and LM
-    steps hold about `triplets x n` rows per problem."""
-    triplets = len(jp.triplet_indices(n, 2000))
-    return max(1, min(50, int(2e6 // (triplets * n))))
+    steps hold about `triplets x n` rows per problem; the non-linear method runs LM on
+    every triplet, so it gets half as many problems once that is large."""
+    rows = len(jp.triplet_indices(n, 2000)) * n
+    size = max(1, min(50, int(2e6 // rows)))
+    return max(1, size // 2) if method == "nonlinear" and rows > 10_000 else size
 
 
 # --------------------------------------------------------------------------- geometry
@@ -273,7 +276,7 @@ def solve_jaxpose(cell: Cell, method: str, trials: int, chunk: int | None = None
     """`jaxpose.solve_pnp_batch` over the first `trials` trials, in padded chunks of
     `chunk` (default `chunk_size(n)`; every call has the same shapes: one compilation per
     `(n, method)`)."""
-    chunk = chunk or chunk_size(cell.n)
+    chunk = chunk or chunk_size(cell.n, method)
     R, t, ok = _empty(trials)
     t0 = time.perf_counter()
     first = None
@@ -433,29 +436,80 @@ def reproducer(cell: Cell, i: int, name: str, ans: Answers, ml: Answers, ml_err,
     }
 
 
-def diagnose(rep: dict) -> dict:
-    """`jaxpose.solve` (mixed, float64) on a reproducer: the status of its answer (why no
-    pose was accepted, or which step accepted a pose off the optimum) and its error."""
+def diagnose(rep: dict, *, max_steps: int = 500) -> dict:
+    """Why jaxpose's mixed method missed the ML optimum on a reproducer.
+
+    Runs `jaxpose.solve` (mixed, float64): the status of its answer and its error. For
+    `n <= 10` also `jaxpose.mixed` (the per-triplet outcome, with `solve`'s non-linear
+    budget) and, from every three-point root of every triplet, Levenberg-Marquardt with a
+    generous `max_steps`: which roots lead to the ML optimum (within 1e-6 px), and their
+    rank by Eq. 8 error within their triplet (the mixed method refines rank 0 first)."""
     import jax
     import jax.numpy as jnp
 
     K = np.asarray(rep["K"])
     C = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+    ml = rep["ml_rms_px"]
     with jax.enable_x64(True):
-        sol = jax.jit(jp.solve)(
-            jnp.asarray(C, jnp.float64),
-            jnp.asarray(rep["object_points"], jnp.float64),
-            jnp.asarray(rep["image_points"], jnp.float64),
+        args = tuple(
+            jnp.asarray(a, jnp.float64) for a in (C, rep["object_points"], rep["image_points"])
         )
+        sol = jax.jit(jp.solve)(*args)
         status = jp.Status(int(sol.status))
-        return {
+        out = {
             "accepted": bool(sol.accepted),
             "status": status.name,
             "message": status.message,
             "error_px": float(sol.error),
-            "error_minus_ml_px": float(sol.error) - rep["ml_rms_px"],
+            "error_minus_ml_px": float(sol.error) - ml,
             "triplet": int(sol.triplet),
         }
+        if rep["n"] > 10:
+            return out
+
+        def per_triplet(C, model, image):
+            obs = jp.observations(C, model, image)
+            res = jp.mixed(obs, nonlinear_budget=32)
+            ini = res.initial
+            R = jnp.concatenate([ini.pose.R[:, None], ini.alt_pose.R], axis=1)
+            t = jnp.concatenate([ini.pose.t[:, None], ini.alt_pose.t], axis=1)
+
+            def refine(R, t):
+                return jp.nonlinear(obs, jp.Pose(R, t), max_steps=max_steps)
+
+            refined = jax.vmap(jax.vmap(refine))(R, t)
+            root_error = jnp.concatenate([ini.error[:, None], ini.alt_error], axis=1)
+            return res, root_error, refined.error, refined.pose.R
+
+        res, root_error, lm_error, lm_R = jax.jit(per_triplet)(*args)
+        big = np.finfo(np.float64).max / 2
+        roots = np.asarray(root_error) < big
+        reach = roots & (np.asarray(lm_error) <= ml + ABS_TOL)
+        ml_R = np.asarray(rep["R_ml"])
+        triplets = []
+        for k in range(len(res.error)):
+            triplets.append(
+                {
+                    "initial_status": jp.Status(int(res.initial.status[k])).name,
+                    "status": jp.Status(int(res.status[k])).name,
+                    "error_px": float(res.error[k]),
+                    "root": int(res.root[k]),
+                    "root_p3p_error_px": [float(e) for e in np.asarray(root_error[k])[roots[k]]],
+                    "root_lm_error_px": [float(e) for e in np.asarray(lm_error[k])[roots[k]]],
+                    "root_lm_deg_from_ml": [
+                        float(rotation_angle_deg(np.asarray(R)[None], ml_R[None])[0])
+                        for R in np.asarray(lm_R[k])[roots[k]]
+                    ],
+                }
+            )
+        out |= {
+            "lm_max_steps": max_steps,
+            "roots": int(roots.sum()),
+            "roots_reaching_ml": int(reach.sum()),
+            "best_roots_reaching_ml": int(reach[:, 0].sum()),
+            "triplets": triplets,
+        }
+        return out
 
 
 def run_cell(
@@ -483,7 +537,8 @@ def run_cell(
         ans = solve_jaxpose(cell, method, trials, chunk)
         rows[name], missed, gap = summarise(cell, ans, ml_err)
         kept = [r for r in reproducers if r["method"] == name and r["kind"] == cell.kind]
-        for i in np.flatnonzero(missed)[: max(0, MAX_REPRODUCERS - len(kept))]:
+        room = MAX_REPRODUCERS.get(method, 3) - len(kept)
+        for i in np.flatnonzero(missed)[: max(0, room)]:
             reproducers.append(reproducer(cell, i, name, ans, ml, ml_err, gap))
     if progress is not None:
         progress(f"{cell.kind} n={cell.n} sigma={cell.sigma:g}: OpenCV, PoseLib x {B}")
@@ -656,7 +711,7 @@ def run(
     plots: bool = True,
     seed: int = 0,
     console=None,
-    tag: str = "",
+    tag: str | None = None,
     chunk: int | None = None,
 ) -> dict:
     """Run the accuracy benchmark; print its tables, write its JSON and plots.
@@ -670,8 +725,8 @@ def run(
     - `real_images`: also run the chessboard images; `plots`: write the PNGs.
     - `seed`: the instances' base seed; `console`: a `rich.console.Console` (default:
       a new one); `tag`: appended to the file names (`accuracy{tag}.json`,
-      `accuracy{tag}_<kind>.png`); `chunk`: problems per `solve_pnp_batch` call
-      (default `chunk_size(n)`).
+      `accuracy{tag}_<kind>.png`; default `"_quick"` in quick mode, else none);
+      `chunk`: problems per `solve_pnp_batch` call (default `chunk_size(n, method)`).
 
     **Returns:** the JSON-ready result (also written to `out_dir / f"accuracy{tag}.json"`).
     """
@@ -679,6 +734,7 @@ def run(
 
     console = console or Console(width=None if sys.stdout.isatty() else 160)
     out = Path(out_dir) if out_dir is not None else RESULTS
+    tag = ("_quick" if quick else "") if tag is None else tag
     out.mkdir(parents=True, exist_ok=True)
     schedule = schedule or default_schedule(quick, trials)
     start = time.perf_counter()
@@ -742,7 +798,10 @@ def run(
             "ablation": {
                 m: {str(k): v for k, v in d.items()} for m, d in schedule.ablation.items()
             },
-            "chunk": {str(n): chunk or chunk_size(n) for n in sorted({SIGMA_SWEEP_N, *ns})},
+            "chunk": {
+                str(n): {m: chunk or chunk_size(n, m) for m in jax_methods}
+                for n in sorted({SIGMA_SWEEP_N, *ns})
+            },
         },
         "synthetic": synthetic,
         "at_optimum": optimum,
@@ -1068,7 +1127,6 @@ def main(argv: Sequence[str] | None = None) -> dict:
         kinds=args.kinds,
         seed=args.seed,
         real_images=not args.no_images,
-        tag="_quick" if args.quick and args.out is None else "",
     )
     if args.markdown:
         Path(args.markdown).write_text(markdown(result))

@@ -16,11 +16,12 @@ and the two compiled functions timed are
 A batch larger than `--chunk` (64) runs as `jax.lax.map` over vmapped chunks of that
 size, which bounds the memory (a single 1024-wide vmap of 560 triplets each would need
 about 16 GB; a chunk of 64 needs about 1.5 GB). Each function is compiled first (a
-warm-up call, not timed) and then timed `--repeat` times; the table reports the best
-(the JSON also the median and every run). The ratio `backward / forward` is
-`(forward+backward - forward) / forward`; the design target is <= 2.
+warm-up call, not timed); then the two are timed alternately `--repeat` times, so that
+the load of a shared machine weighs on both alike. The table reports medians (the JSON
+every run), and `backward / forward`, the median over the runs of
+`(forward+backward) / forward - 1`; the design target is <= 2.
 
-    python benchmarks/gradients.py --batch 64 1024 --repeat 3
+    python benchmarks/gradients.py --batch 64 1024 --repeat 5
 
 Prints a table and writes JSON to benchmarks/results/gradients.json.
 """
@@ -48,25 +49,31 @@ def problems(batch: int):
     return tuple(stack(n) for n in ("camera", "model_points", "image_points", "R", "t"))
 
 
-def _timed(fn, args, repeat: int) -> tuple[float, list[float]]:
-    """Compile-and-run time of the first call, then the times of `repeat` calls."""
+def _timed_pair(forward, both, args, repeat: int):
+    """First-call (compile and run) times of both functions, then `repeat` interleaved
+    timings `(forward, forward+backward)`, so that a loaded machine slows both alike."""
     import jax
 
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeat):
+    first = []
+    for fn in (forward, both):
         t0 = time.perf_counter()
         jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return first, times
+        first.append(time.perf_counter() - t0)
+    pairs = []
+    for _ in range(repeat):
+        pair = []
+        for fn in (forward, both):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            pair.append(time.perf_counter() - t0)
+        pairs.append(pair)
+    return first, np.array(pairs)
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, nargs="+", default=[64, 1024])
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--chunk", type=int, default=64)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
@@ -92,24 +99,20 @@ def main(argv=None) -> dict:
     for B in args.batch:
         forward, both = batched(loss, B), batched(value_and_grad, B)
         data = tuple(jnp.asarray(x) for x in problems(B))
-        c_fwd, t_fwd = _timed(forward, data, args.repeat)
-        c_both, t_both = _timed(both, data, args.repeat)
+        (c_fwd, c_both), times = _timed_pair(forward, both, data, args.repeat)
         value, grads = both(*data)
         finite = bool(all(np.all(np.isfinite(np.asarray(g))) for g in grads))
         same = float(np.max(np.abs(np.asarray(value) - np.asarray(forward(*data)))))
-        fwd, fb = min(t_fwd), min(t_both)
+        t_fwd, t_both = times[:, 0].tolist(), times[:, 1].tolist()
+        ratio = float(np.median(times[:, 1] / times[:, 0])) - 1
+        fwd, fb = statistics.median(t_fwd), statistics.median(t_both)
         rows.append(
             {
                 "batch": B,
-                "forward_s": {"best": fwd, "median": statistics.median(t_fwd), "all": t_fwd},
-                "forward_backward_s": {
-                    "best": fb,
-                    "median": statistics.median(t_both),
-                    "all": t_both,
-                },
+                "forward_s": {"median": fwd, "best": min(t_fwd), "all": t_fwd},
+                "forward_backward_s": {"median": fb, "best": min(t_both), "all": t_both},
                 "first_call_s": {"forward": c_fwd, "forward_backward": c_both},
-                "backward_over_forward": (fb - fwd) / fwd,
-                "forward_backward_over_forward": fb / fwd,
+                "backward_over_forward": ratio,
                 "per_problem_ms": {"forward": 1e3 * fwd / B, "forward_backward": 1e3 * fb / B},
                 "gradients_finite": finite,
                 "loss_max_difference": same,
@@ -123,7 +126,8 @@ def main(argv=None) -> dict:
     print(head)
     print("-" * len(head))
     for r in rows:
-        fwd, fb, ms = r["forward_s"]["best"], r["forward_backward_s"]["best"], r["per_problem_ms"]
+        fwd, fb = r["forward_s"]["median"], r["forward_backward_s"]["median"]
+        ms = r["per_problem_ms"]
         print(
             f"{r['batch']:>6} {fwd:>12.3f} {fb:>12.3f} {r['backward_over_forward']:>17.2f}"
             f" {ms['forward']:>15.2f} {ms['forward_backward']:>15.2f}"

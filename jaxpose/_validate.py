@@ -19,6 +19,7 @@ __all__ = [
     "as_intrinsics",
     "as_matching",
     "as_points",
+    "check_problem",
 ]
 
 #: Distortion vector lengths OpenCV accepts.
@@ -270,3 +271,68 @@ def as_batched(x, name, tail, *, batch_size=None, count=None, shared=True, min_c
     elif tuple(item) != tuple(tail):
         raise ValueError(f"{name} must have shape {expected}, got {arr.shape}")
     return arr
+
+
+def _shape_dtype(x, name):
+    """Shape and dtype of an array, a tracer or an array-like (values are not read)."""
+    if x is None:
+        raise ValueError(f"{name} is required, got None")
+    if hasattr(x, "shape") and hasattr(x, "dtype"):
+        return tuple(x.shape), np.dtype(x.dtype)
+    try:
+        arr = np.asarray(x)
+    except Exception as exc:  # ragged lists and the like
+        raise ValueError(f"{name} could not be read as an array: {exc}") from exc
+    return arr.shape, arr.dtype
+
+
+def check_problem(camera, model, image, mask=None, *, min_count=3):
+    """Check the shapes and dtypes of one problem of the JAX-native API.
+
+    Only `.shape` and `.dtype` are read, never values, so this runs under `jit`, `vmap`
+    and `grad` too (on tracers, at trace time); values (NaN, a singular camera) are
+    reported by the solvers' status codes instead.
+
+    **Arguments:**
+
+    - `camera`: `(3, 4)`, real.
+    - `model`: `(n, 3)`, real, `n >= min_count`.
+    - `image`: `(n, 2)`, real, the same `n`.
+    - `mask`: `None` or `(n,)`, bool or integer.
+    - `min_count`: the fewest matches accepted.
+
+    **Raises:**
+
+    `ValueError` naming the argument.
+    """
+
+    def real(name, x):
+        shape, dtype = _shape_dtype(x, name)
+        if dtype == np.bool_ or not (
+            np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)
+        ):
+            raise ValueError(f"{name} must hold real numbers, got dtype {dtype}")
+        return shape
+
+    shape = real("camera", camera)
+    if shape != (3, 4):
+        raise ValueError(f"camera must be a 3x4 projection matrix, got shape {shape}")
+    shape = real("model", model)
+    if len(shape) != 2 or shape[1] != 3:
+        raise ValueError(f"model must have shape (n, 3), got {shape}")
+    n = shape[0]
+    shape = real("image", image)
+    if len(shape) != 2 or shape[1] != 2:
+        raise ValueError(f"image must have shape (n, 2), got {shape}")
+    if shape[0] != n:
+        raise ValueError(
+            f"model and image must match one to one: model has {n} points, image has {shape[0]}"
+        )
+    if n < min_count:
+        raise ValueError(f"model and image need at least {min_count} points, got {n}")
+    if mask is not None:
+        shape, dtype = _shape_dtype(mask, "mask")
+        if shape != (n,):
+            raise ValueError(f"mask must have shape ({n},), got {shape}")
+        if not (dtype == np.bool_ or np.issubdtype(dtype, np.integer)):
+            raise ValueError(f"mask must be bool (or integer 0/1), got dtype {dtype}")

@@ -85,12 +85,12 @@ def test_run_on_a_tiny_grid(accuracy, tmp_path):
         real_images=False,
         chunk=6,
     )
-    saved = json.loads((tmp_path / "accuracy.json").read_text())
+    saved = json.loads((tmp_path / "accuracy_quick.json").read_text())
     assert saved["at_optimum"] == result["at_optimum"]
     assert {"machine", "versions", "protocol", "schedule", "synthetic"} <= set(saved)
     assert saved["versions"]["opencv"] == cv2.__version__
     for kind in ("quasi_singular", "planar"):
-        assert (tmp_path / f"accuracy_{kind}.png").stat().st_size > 0
+        assert (tmp_path / f"accuracy_quick_{kind}.png").stat().st_size > 0
         cell = saved["synthetic"][kind]["sigma"]["cells"][0]
         assert saved["synthetic"][kind]["n"]["cells"][0] == cell
         methods = cell["methods"]

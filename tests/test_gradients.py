@@ -324,6 +324,7 @@ def test_not_accepted_problems_have_zero_gradient():
         assert all(np.any(G[3, :12, cols] != 0) for cols in GROUPS.values())
 
 
+@pytest.mark.slow
 def test_float32_gradients_are_finite_and_close_to_float64():
     rng = np.random.default_rng(10)
     cases = [_problem(rng, 7, noise=0.5) for _ in range(6)]
