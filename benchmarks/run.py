@@ -91,8 +91,7 @@ def print_speed(res: dict, console) -> None:
         "PoseLib loop (p3p, best root, refine)",
         f"{p['poselib_ms']:.1f} ms",
         f"{p['vs_poselib']:.1f}x faster",
-        f">= {T['paper_vs_poselib']:g}x: "
-        f"{_status(p['vs_poselib'], T['paper_vs_poselib'], True)}",
+        f">= {T['paper_vs_poselib']:g}x: {_status(p['vs_poselib'], T['paper_vs_poselib'], True)}",
     )
     console.print(t)
     console.print(

@@ -138,9 +138,7 @@ def latency(repeat: int) -> dict:
     ours = _best(lambda: jp.solve_pnp(obj, img, K), repeat)
     jp.solve_pnp(obj, img, K, triplet_budget=8)
     budget = _best(lambda: jp.solve_pnp(obj, img, K, triplet_budget=8), repeat)
-    sq = _best(
-        lambda: cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP), max(repeat, 50)
-    )
+    sq = _best(lambda: cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP), max(repeat, 50))
     return {
         "solve_pnp_ms": 1e3 * ours,
         "solve_pnp_budget8_ms": 1e3 * budget,
