@@ -24,12 +24,12 @@ from ._mixed import (
     triplet_indices,
 )
 from ._pose import Observations, Pose, observations, transform
-from ._residuals import pixel_residuals, rms
+from ._residuals import in_front, pixel_residuals, rms, rounding_level
 from ._rotation import matrix_to_rotvec
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
 from ._status import Status
-from ._validate import as_dist_coeffs, as_intrinsics, as_matching, as_points
+from ._validate import as_dist_coeffs, as_intrinsics, as_matching, as_points, check_problem
 
 __all__ = ["METHODS", "Solution", "solve", "solve_many", "solve_pnp", "solve_pnp_batch"]
 
@@ -124,6 +124,8 @@ def solve(
     """
     _check_method(method)
     _check_budget(triplet_budget)
+    check_problem(camera, model, image, mask)
+    camera, model, image, finite = _finite_inputs(camera, model, image)
     obs = observations(camera, model, image, mask)
     rows, initial = _initial(obs, min_area, collinear_tol, max_triplets, triplet_budget)
     sobs = jax.lax.stop_gradient(obs)
@@ -142,7 +144,7 @@ def solve(
         found = _per_triplet(
             method, sobs, initial, threshold, rel_threshold, linear_iterations, max_steps
         )
-    return _finish(method, obs, rows, *found)
+    return _not_finite(_finish(method, obs, rows, *found), finite)
 
 
 def solve_many(
@@ -174,7 +176,12 @@ def solve_many(
     """
     _check_method(method)
     _check_budget(triplet_budget)
+    _check_many(camera, model, image, mask)
     B = model.shape[0]
+    camera, model, image, finite = jax.vmap(_finite_inputs, in_axes=(None, 0, 0))(
+        camera, model, image
+    )
+    camera = camera[0]
     if mask is None:
         # (The barrier keeps XLA from constant-folding the all-true mask through the
         # triplet gathers, which costs seconds of compile time for nothing.)
@@ -204,7 +211,65 @@ def solve_many(
                 method, o, i, threshold, rel_threshold, linear_iterations, max_steps
             )
         )(sobs, initial)
-    return jax.vmap(functools.partial(_finish, method))(obs, rows, *found)
+    return jax.vmap(_not_finite)(
+        jax.vmap(functools.partial(_finish, method))(obs, rows, *found), finite
+    )
+
+
+def _check_many(camera, model, image, mask) -> None:
+    """`check_problem` for a batch: `model (B, n, 3)`, `image (B, n, 2)`, `mask (B, n)`."""
+    for name, x, tail in (("model", model, 3), ("image", image, 2)):
+        shape = getattr(x, "shape", None)
+        if shape is None or len(shape) != 3 or shape[-1] != tail:
+            raise ValueError(f"{name} must have shape (B, n, {tail}), got {shape}")
+    if image.shape[0] != model.shape[0]:
+        raise ValueError(
+            f"model and image must hold the same number of problems, got {model.shape[0]} "
+            f"and {image.shape[0]}"
+        )
+    if mask is not None and (getattr(mask, "ndim", None) != 2 or mask.shape[0] != model.shape[0]):
+        raise ValueError(f"mask must have shape (B, n), got {getattr(mask, 'shape', None)}")
+
+    def item(x):
+        return None if x is None else jax.ShapeDtypeStruct(x.shape[1:], x.dtype)
+
+    check_problem(camera, item(model), item(image), item(mask))
+
+
+def _finite_inputs(camera, model, image):
+    """The problem with its non-finite values replaced by harmless finite ones (the
+    camera by `[I | 0]`, points by zeros), and whether it had none: the solvers then run
+    on finite numbers, and `_not_finite` reports the problem. (Non-finite values of
+    masked-out matches count too: padding should be finite.)"""
+    camera = jnp.asarray(camera)
+    if not jnp.issubdtype(camera.dtype, jnp.floating):
+        camera = camera.astype(jnp.result_type(float))
+    model = jnp.asarray(model, camera.dtype)
+    image = jnp.asarray(image, camera.dtype)
+    finite_camera = jnp.all(jnp.isfinite(camera))
+    finite = finite_camera & jnp.all(jnp.isfinite(model)) & jnp.all(jnp.isfinite(image))
+    camera = jnp.where(finite_camera, camera, jnp.eye(3, 4, dtype=camera.dtype))
+    model = jnp.where(jnp.isfinite(model), model, 0)
+    image = jnp.where(jnp.isfinite(image), image, 0)
+    return camera, model, image, finite
+
+
+def _not_finite(sol: Solution, finite) -> Solution:
+    """`sol`, or when the input held non-finite values, the placeholder answer: identity
+    pose, zero errors, not accepted, status `NOT_FINITE` (and a zero gradient)."""
+    dtype = sol.error.dtype
+
+    def pick(a, b):
+        return jnp.where(finite, a, jnp.asarray(b, a.dtype))
+
+    return Solution(
+        pose=Pose(pick(sol.pose.R, jnp.eye(3, dtype=dtype)), pick(sol.pose.t, 0)),
+        error=pick(sol.error, 0),
+        pose_error=pick(sol.pose_error, 0),
+        status=pick(sol.status, Status.NOT_FINITE),
+        accepted=sol.accepted & finite,
+        triplet=pick(sol.triplet, 0),
+    )
 
 
 def _triplet_count(n: int, max_triplets: int | None, triplet_budget: int | None) -> int:
@@ -231,7 +296,15 @@ def _per_triplet(method, sobs, initial, threshold, rel_threshold, linear_iterati
     big = jnp.finfo(dtype).max
     usable = initial.status == Status.OK
     if method == "three_point":
-        error, status = initial.error, jnp.where(usable, Status.OK, initial.status)
+        # The three-point solver checks only its own triplet's depths: a pose that puts
+        # other used matches behind the camera is reported, not accepted.
+        front = jax.vmap(lambda R, t: in_front(transform(Pose(R, t), sobs.model), sobs))(
+            initial.pose.R, initial.pose.t
+        )
+        error = initial.error
+        status = jnp.where(
+            usable, jnp.where(front, Status.OK, Status.BEHIND_CAMERA), initial.status
+        )
         if threshold is not None:
             reject = (status == Status.OK) & (error >= threshold)
             status = jnp.where(reject, Status.REJECTED, status)
@@ -246,7 +319,8 @@ def _per_triplet(method, sobs, initial, threshold, rel_threshold, linear_iterati
     converged = status == Status.OK
     if threshold is None:
         best = jnp.min(jnp.where(converged, error, big))
-        thr = jnp.where(best < big, best * (1 + rel_threshold), big)
+        floor = rounding_level(sobs)
+        thr = jnp.where(best < big, jnp.maximum(best * (1 + rel_threshold), floor), big)
     else:
         thr = jnp.asarray(threshold, dtype)
     status = jnp.where(converged & (error >= thr), Status.REJECTED, status)
@@ -343,6 +417,16 @@ def _batched_opencv(K, obj, img, method, triplet_budget=None):
     return sol.accepted, jax.vmap(matrix_to_rotvec)(sol.pose.R), sol.pose.t
 
 
+def _read_array(x, name: str) -> np.ndarray:
+    """`np.asarray(x)`, with numpy's complaints (ragged lists and the like) naming `name`."""
+    if x is None:
+        raise ValueError(f"{name} is required, got None")
+    try:
+        return np.asarray(x)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{name} could not be read as an array: {exc}") from exc
+
+
 def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: bool):
     K = as_intrinsics(camera_matrix_, "camera_matrix")
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
@@ -351,12 +435,14 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
         img = as_points(image_points, "image_points", 2, min_count=3)
         as_matching(obj, img)
         return K, obj, undistort_pixels(img, K, dist)
-    img = np.asarray(image_points)
+    img = _read_array(image_points, "image_points")
     if img.ndim != 3 or img.shape[-1] != 2:
         raise ValueError(f"image_points must have shape (B, n, 2), got {img.shape}")
     B, n = img.shape[:2]
+    if B == 0:
+        raise ValueError("image_points must hold at least one problem, got an empty batch")
     img = np.stack([as_points(x, "image_points", 2, min_count=3) for x in img])
-    obj = np.asarray(object_points)
+    obj = _read_array(object_points, "object_points")
     if obj.ndim == 2:
         obj = np.broadcast_to(as_points(obj, "object_points", 3, min_count=3), (B, *obj.shape))
     elif obj.ndim == 3 and obj.shape[0] == B:

@@ -14,7 +14,8 @@ For every triplet of matches, as one fixed-shape batch:
 `threshold` is in pixels (the paper: given by the recognition system). With
 `threshold=None` it adapts to the problem: `(1 + rel_threshold)` times the lowest error of
 any triplet that converged at step 2, i.e. "reached the best pose found": that is what
-a PnP user wants accepted. If no triplet converged at step 2, every converged one is
+a PnP user wants accepted (and never below the rounding level of exact data,
+`jaxpose._residuals.rounding_level`). If no triplet converged at step 2, every converged one is
 accepted at step 4.
 
 Under `vmap`, `lax.cond` and `lax.while_loop` run every branch and iteration for every
@@ -43,7 +44,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._pose import Observations, Pose, transform
-from ._residuals import in_front, pixel_residuals, rms
+from ._residuals import in_front, pixel_residuals, rms, rounding_level
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
 from ._solver.p3p import three_point
@@ -171,7 +172,8 @@ def initial_poses(
             collinear_tol=collinear_tol,
             approximate=True,
         )
-        err = jnp.where(sol.valid, _errors(Pose(sol.R, sol.t), obs), big)
+        err = _errors(Pose(sol.R, sol.t), obs)
+        err = jnp.where(sol.valid & jnp.isfinite(err), err, big)
         order = jnp.argsort(err)
         best, others = order[0], order[1:]
         used = jnp.all(obs.mask[ijk])
@@ -232,6 +234,10 @@ def _where_needed(fn, need, priority, chunk: int, *args):
     N = need.shape[0]
     k = max(1, min(int(chunk), N))
     big = jnp.finfo(priority.dtype).max
+    # Selection key: remaining elements by priority (non-finite ones last among them),
+    # all of them strictly before every other element, so that each pass takes only
+    # remaining ones while any is left and the loop always ends.
+    key = -jnp.clip(jnp.where(jnp.isnan(priority), big, priority), -big, big)
     shapes = jax.eval_shape(lambda *a: jax.vmap(fn)(*a), *(jax.tree.map(lambda x: x[:k], args)))
     results = jax.tree.map(lambda s: jnp.zeros((N, *s.shape[1:]), s.dtype), shapes)
 
@@ -242,7 +248,7 @@ def _where_needed(fn, need, priority, chunk: int, *args):
     def body(state):
         results, done = state
         remaining = need & ~done
-        _, slots = jax.lax.top_k(-jnp.where(remaining, priority, big), k)
+        _, slots = jax.lax.top_k(jnp.where(remaining, key, -jnp.inf), k)
         take = remaining[slots]
         out = jax.vmap(fn)(*(jax.tree.map(lambda x: x[slots], args)))
 
@@ -329,7 +335,8 @@ def mixed_from_initial_batch(
     lin_ok = usable & (lin.status == Status.OK)
     if threshold is None:
         best = jnp.min(jnp.where(lin_ok, lin.error, big), axis=1)
-        thr = jnp.where(best < big, best * (1 + rel_threshold), big)
+        floor = jax.vmap(rounding_level)(obs)
+        thr = jnp.where(best < big, jnp.maximum(best * (1 + rel_threshold), floor), big)
     else:
         thr = jnp.full((B,), threshold, dtype)
 

@@ -66,12 +66,24 @@ def pixel_residuals(world: Float[Array, "n 3"], obs: Observations) -> Float[Arra
     return plane_residuals(world, obs) * safe_inverse_depth(depths(world, obs))[:, None]
 
 
+def rounding_level(obs: Observations) -> Float[Array, ""]:
+    """The Eq. 8 error (px) below which a pose fits to rounding: `64 eps (1 + max |pixel|)`
+    over the used matches (about 1e-11 px in float64, 8e-3 px in float32 for 1000-px
+    images). An error below it is an exact fit, a global optimum."""
+    eps = jnp.finfo(obs.image.dtype).eps
+    return 64 * eps * (1 + jnp.max(jnp.where(obs.mask[:, None], jnp.abs(obs.image), 0)))
+
+
 def rms(residuals: Float[Array, "n 2"], mask) -> Float[Array, ""]:
-    """Eq. 8: `sqrt(mean_i |r_i|^2)` over the masked matches, NaN-free (also its gradient)."""
+    """Eq. 8: `sqrt(mean_i |r_i|^2)` over the masked matches.
+
+    Its gradient is finite at a zero residual (where `sqrt` alone would give NaN). A
+    non-finite residual of a used match gives a non-finite error (NaN stays NaN, so that
+    callers' finiteness tests see it); masked-out matches are ignored whatever they hold."""
     count = jnp.maximum(jnp.sum(mask), 1)
     ss = jnp.sum(jnp.where(mask[:, None], residuals, 0) ** 2) / count
     ok = ss > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, ss, 1)), 0)
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, ss, 1)), jnp.where(ss == 0, 0, ss))
 
 
 @jax.jit

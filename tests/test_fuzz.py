@@ -698,11 +698,6 @@ def test_linear_and_nonlinear(method, batch):
     assert np.all(_front(s["camera"], out.pose.R, out.pose.t, s["model"], s["mask"])[converged])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="nonlinear's stationarity test (cosine of J^T r with r ~ rounding) fails at a zero "
-    "residual: exact poses of noise-free problems are reported NONLINEAR_NOT_CONVERGED",
-)
 def test_nonlinear_converges_on_exact_data():
     s, out, _, angle = _refine("nonlinear", NONLINEAR_BATCH, poison=False)
     good = np.isin(s["kind"], [KIND[k] for k in GOOD_KINDS]) & (angle == 0.02)
@@ -710,11 +705,6 @@ def test_nonlinear_converges_on_exact_data():
     assert np.all(out.status[good] == jp.Status.OK)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Eq. 8's rms maps NaN residuals to 0 (jaxpose/_residuals.py rms): linear reports OK "
-    "on NaN pixels; nonlinear returns a NaN translation for a NaN model point",
-)
 @pytest.mark.parametrize(("method", "batch"), REFINERS)
 def test_linear_and_nonlinear_non_finite(method, batch):
     s, out, poisoned, _ = _refine(method, batch, poison=True)
@@ -802,12 +792,6 @@ def test_solve(dtype):
             assert e_jp <= e_cv + 1e-3, (b, e_jp, e_cv)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="on exact data the adaptive threshold is at rounding level (1.01 x ~1e-13 px), "
-    "so most triplets go to Levenberg-Marquardt, whose stationarity test fails at a zero "
-    "residual; about 1 exact problem in 600 ends with no triplet accepted",
-)
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_solve_accepts_every_exact_problem(dtype):
     s, _, out = _solved(dtype)
@@ -845,8 +829,7 @@ def _solve_terminates_on_non_finite() -> bool:
 def test_solve_non_finite():
     """NaN and inf in the camera, the model or the image: finite placeholders, not
     accepted, status `NOT_FINITE` (the first failing problem is printed)."""
-    if not _solve_terminates_on_non_finite():
-        pytest.skip("solve spins forever on some non-finite input (_mixed._where_needed)")
+    assert _solve_terminates_on_non_finite()
     dtype = "float64"
     B = SOLVE_BATCH[dtype]  # the shape test_solve compiled
     rng = np.random.default_rng(60)
@@ -904,11 +887,6 @@ def test_solve_pnp_batch_degenerate_and_valid():
     assert np.all(front[ok & ~is_kind("some_behind")])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="method='three_point' accepts a pose that puts other matches behind the camera "
-    "(only the triplet's own points are checked)",
-)
 def test_solve_pnp_batch_three_point_keeps_points_in_front():
     s, _, (ok, *_), front = _pnp_batch()
     assert np.all(front[ok])
@@ -1125,11 +1103,6 @@ def test_solve_batch_rejects_bad_arguments(data):
         jp.solve_batch(**args)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="solve_pnp_batch's _prepare calls np.asarray / np.stack before validating: ragged "
-    "lists and an empty batch raise numpy's ValueError, which does not name the argument",
-)
 @pytest.mark.parametrize(
     ("which", "value"),
     [
@@ -1181,11 +1154,6 @@ def test_check_problem_rejects_bad_arguments(case):
         jax.eval_shape(lambda *a: check_problem(*a), *args.values())
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="jaxpose.solve does not check shapes yet: a 3x3 camera passes, others fail with "
-    "TypeError / ZeroDivisionError (it should call jaxpose._validate.check_problem)",
-)
 @pytest.mark.parametrize(
     ("which", "value"),
     [

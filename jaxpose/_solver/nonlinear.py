@@ -31,7 +31,7 @@ from jaxtyping import Array, Float, Int
 
 from .._linalg import NormalCholesky
 from .._pose import Observations, Pose, transform
-from .._residuals import in_front, pixel_residuals, rms
+from .._residuals import in_front, pixel_residuals, rms, rounding_level
 from .._rotation import quaternion_vector_to_matrix
 from .._status import Status
 
@@ -91,7 +91,8 @@ def nonlinear(
     - `rtol`, `atol`: optimistix's relative and absolute tolerances on the parameters and
       the cost (defaults: `1e-8` / `1e-10` in float64, `1e-5` / `1e-6` in float32).
     - `gtol`: stationarity test: converged when every Jacobian column makes a cosine below
-      `gtol` with the residual (default `1e-6` in float64, `1e-2` in float32).
+      `gtol` with the residual (default `1e-6` in float64, `1e-2` in float32), or when the
+      error is at rounding level (`jaxpose._residuals.rounding_level`: exact data).
     - `max_steps`: iteration budget. Running out of it counts as converged only if the
       pose is stationary (see `gtol`).
 
@@ -120,7 +121,7 @@ def nonlinear(
     pose = Pose(Rq @ init.R, Rq @ (init.t - centre) + centre + length * y[3:])
     world = transform(pose, obs.model)
     error = rms(pixel_residuals(world, obs), obs.mask)
-    finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(y))
+    finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t))
     front = in_front(world, obs)
     # Converged means stationary: the residual is orthogonal to every Jacobian column
     # (MINPACK's gtol test). optimistix tests termination only on accepted steps, and at
@@ -129,7 +130,10 @@ def nonlinear(
     r = _residual(y, args)
     J = jax.jacfwd(_residual)(y, args)
     cosine = jnp.abs(J.T @ r) / (jnp.linalg.norm(J, axis=0) * jnp.linalg.norm(r) + tiny)
-    stationary = jnp.max(cosine) < gtol
+    # A residual at rounding level (exact data) is a global optimum, where the cosine is
+    # rounding noise: stationary too.
+    exact = error <= rounding_level(obs)
+    stationary = (jnp.max(cosine) < gtol) | exact
     stopped = (sol.result == optx.RESULTS.successful) | (
         sol.result == optx.RESULTS.nonlinear_max_steps_reached
     )
