@@ -1,13 +1,16 @@
 """The benchmark suite in one command: speed (`speed.py`) and accuracy (`accuracy.py`) of
-jaxpose beside OpenCV and PoseLib, timed in the same run.
+jaxpose beside OpenCV and PoseLib, timed in the same run, and scaling (`scale.py`: time,
+peak memory and compile time versus n and batch size).
 
     python benchmarks/run.py            # full (what the README's tables come from)
     python benchmarks/run.py --quick    # a few minutes
     python benchmarks/run.py --only speed
+    python benchmarks/run.py --only scale
 
 Prints the tables (with the targets and the ratio to each), writes
-`benchmarks/results/speed.json` (and the accuracy module's JSON and plots) and
-`benchmarks/results/batch.png`. Computes in float64 (x64 enabled for this process).
+`benchmarks/results/speed.json` (and the accuracy module's JSON and plots),
+`benchmarks/results/batch.png` and `scale.json` / `scale.png` (`*_quick.*` with
+`--quick`). Computes in float64 (x64 enabled for this process and scale's workers).
 """
 
 from __future__ import annotations
@@ -154,7 +157,7 @@ def plot_batch(res: dict, path: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats, smaller batches")
-    parser.add_argument("--only", choices=("speed", "accuracy"), default=None)
+    parser.add_argument("--only", choices=("speed", "accuracy", "scale"), default=None)
     parser.add_argument("--out", default=str(HERE / "results"))
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
@@ -181,6 +184,11 @@ def main(argv: list[str] | None = None) -> int:
         import accuracy
 
         accuracy.run(quick=args.quick, out_dir=out)
+    if args.only in (None, "scale"):
+        import scale
+
+        # (Its measurements run in fresh worker processes: cold compiles, clean peak RSS.)
+        scale.run(quick=args.quick, out_dir=out, console=console)
     return 0
 
 

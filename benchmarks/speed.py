@@ -153,26 +153,32 @@ def batch(sizes: list[int], repeat: int, budget: int = 8, seed: int = 1) -> list
     scenes = [jp.random_scene(rng, 16, noise=1.0, world_camera=False) for _ in range(largest)]
     obj_all = np.stack([s.model_points for s in scenes])
     img_all = np.stack([s.image_points for s in scenes])
-    # OpenCV per-problem time: from a loop over (at most) 2000 problems.
-    m = min(largest, 2000)
     ref = np.empty(largest)
-    t0 = time.perf_counter()
-    for i in range(m):
+    for i in range(largest):
         _, rv, tv = cv2.solvePnP(obj_all[i], img_all[i], K, None, flags=cv2.SOLVEPNP_SQPNP)
         rv, tv = cv2.solvePnPRefineLM(obj_all[i], img_all[i], K, None, rv, tv)
         ref[i] = _rms(obj_all[i], img_all[i], K, rv, tv)
-    per_cv = (time.perf_counter() - t0) / m
-    for i in range(m, largest):
-        _, rv, tv = cv2.solvePnP(obj_all[i], img_all[i], K, None, flags=cv2.SOLVEPNP_SQPNP)
-        rv, tv = cv2.solvePnPRefineLM(obj_all[i], img_all[i], K, None, rv, tv)
-        ref[i] = _rms(obj_all[i], img_all[i], K, rv, tv)
+
+    # OpenCV per-problem time: the best of several loops over 100 problems, so that it is
+    # measured like jaxpose's (best of repeated calls; one long loop on a loaded machine
+    # absorbs every stall).
+    def opencv_block(start: int, count: int = 100):
+        for i in range(start, start + count):
+            _, rv, tv = cv2.solvePnP(obj_all[i], img_all[i], K, None, flags=cv2.SOLVEPNP_SQPNP)
+            cv2.solvePnPRefineLM(obj_all[i], img_all[i], K, None, rv, tv)
+
+    count = min(100, largest)
+    per_cv = min(
+        _best(lambda s=s: opencv_block(s, count), 1) for s in range(0, largest - count + 1, count)
+    )
+    per_cv = min(per_cv, _best(lambda: opencv_block(0, count), max(repeat, 5))) / count
     rows = []
     for B in sizes:
         obj, img = obj_all[:B], img_all[:B]
         t0 = time.perf_counter()
         jp.solve_pnp_batch(obj, img, K, triplet_budget=budget)
         first = time.perf_counter() - t0
-        reps = repeat if B <= 1000 else 1
+        reps = repeat if B <= 1000 else 2
         ours = _best(lambda: jp.solve_pnp_batch(obj, img, K, triplet_budget=budget), reps)  # noqa: B023
         ok, rvecs, tvecs = jp.solve_pnp_batch(obj, img, K, triplet_budget=budget)
         err = np.array([_rms(obj[i], img[i], K, rvecs[i], tvecs[i]) for i in range(B)])
