@@ -77,6 +77,7 @@ from ._recognition import verify as verify
 from ._recognition import verify_hypotheses as verify_hypotheses
 from ._rerun import close_recording as close_recording
 from ._rerun import log_experiment as log_experiment
+from ._rerun import log_pointing as log_pointing
 from ._rerun import log_solution as log_solution
 from ._rerun import log_triplets as log_triplets
 from ._rerun import rerun_blueprint as rerun_blueprint

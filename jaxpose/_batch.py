@@ -220,11 +220,16 @@ def run_batched(
 
 
 def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):
-    """`jaxpose.solve` over the rows of a chunk (`jax.vmap`)."""
-    from ._api import solve
+    """`jaxpose.solve` over the rows of a chunk: `solve_many` (batch-first, one shared
+    Levenberg-Marquardt buffer) when the camera is shared, else `jax.vmap(solve)`."""
+    from ._api import solve, solve_many
 
+    if not camera_batched:
+        if not model_batched:
+            model = jnp.broadcast_to(model, (image.shape[0], *model.shape))
+        return solve_many(camera, model, image, mask, **dict(options))
     one = functools.partial(solve, **dict(options))
-    axes = (0 if camera_batched else None, 0 if model_batched else None, 0, 0)
+    axes = (0, 0 if model_batched else None, 0, 0)
     return jax.vmap(one, in_axes=axes)(camera, model, image, mask)
 
 
@@ -241,11 +246,12 @@ def solve_batch(
     """`jaxpose.solve` over a batch of problems, sharded over devices and chunked.
 
     Equivalent to `jax.jit(jax.vmap(jaxpose.solve))` on the whole batch (same results,
-    row by row), but with the batch axis split over `devices` (a `"batch"` mesh) and
-    streamed in chunks of `chunk_size` problems, so that a million problems fit in
-    memory. Call it eagerly (its inputs are concrete arrays); under `jit` use
-    `jax.vmap(jaxpose.solve)` itself. The dtype follows the inputs (float32 stays float32;
-    float64 needs `jax_enable_x64`).
+    row by row; with one shared camera it runs `jaxpose.solve_many`, the batch-first
+    path, much faster than a plain `vmap` of the mixed method), but with the batch axis
+    split over `devices` (a `"batch"` mesh) and streamed in chunks of `chunk_size`
+    problems, so that a million problems fit in memory. Call it eagerly (its inputs are
+    concrete arrays); under `jit` use `jax.vmap(jaxpose.solve)` itself. The dtype follows
+    the inputs (float32 stays float32; float64 needs `jax_enable_x64`).
 
     **Arguments:**
     - `camera`: one camera `(3, 4)` for all problems, or one per problem `(B, 3, 4)`.

@@ -127,16 +127,7 @@ def _cmd_reproduce(args) -> int:
     if _wants_recording(args):
         from ._rerun import log_experiment
 
-        mix = _per_triplet(
-            console,
-            bench.camera,
-            bench.model_points,
-            bench.image_points,
-            None,
-            args.threshold,
-            method="mixed",
-            nonlinear_budget=None,
-        )
+        mix = result.mixed
         from ._overlay import render_bench
 
         picture = render_bench(bench)[..., ::-1].copy()  # the bench seen by its camera (RGB)
@@ -553,6 +544,7 @@ def _cmd_point(args) -> int:
     width, height = bench.image_size
     if not (0 <= u <= width and 0 <= v <= height):
         raise CliError(f"--pixel {u:g} {v:g} is outside the {width}x{height} image")
+    _check_recording_args(args)
     _setup_jax(True)
     import jax
     import jax.numpy as jnp
@@ -581,22 +573,59 @@ def _cmd_point(args) -> int:
     def mm(x) -> str:
         return "(" + ", ".join(f"{c:.2f}" for c in np.ravel(x)) + ") mm"
 
+    def record(lines: list[str], reached: bool) -> None:
+        """The rerun recording (--rrd/--spawn/--serve) of this pointing command."""
+        if not _wants_recording(args):
+            return
+        from ._overlay import render_bench
+        from ._rerun import log_pointing
+
+        picture = render_bench(bench)[..., ::-1].copy()  # the bench seen by its camera (RGB)
+        found = int(hit.status) == Status.OK
+        _record(
+            args,
+            console,
+            f"jaxpose point {u:g} {v:g}",
+            lambda rec: log_pointing(
+                rec,
+                bench.camera,
+                (u, v),
+                hit if found else None,
+                (sol.pose.R, sol.pose.t),
+                polyhedron=bench.model,
+                model_points=bench.model_points,
+                robot=robot if reached else None,
+                joints=cmd.joints if reached else None,
+                true_point=truth.point if found and int(truth.status) == Status.OK else None,
+                image=picture,
+                image_size=bench.image_size,
+                K=bench.K,
+                R_wc=bench.R_wc,
+                t_wc=bench.t_wc,
+                summary=lines,
+            ),
+        )
+
     if not bool(sol.accepted):
         code = Status(int(sol.status))
         print(f"jaxpose point: no pose accepted on the bench ({code.name}: {code.message})")
         return 1
     if int(hit.status) != Status.OK:
         code = Status(int(hit.status))
-        print(f"jaxpose point: no face at pixel ({u:g}, {v:g}): {code.message}")
+        line = f"no face at pixel ({u:g}, {v:g}): {code.message}"
+        print(f"jaxpose point: {line}")
+        record([f"# jaxpose point: {line}"], reached=False)
         return 1
     face = int(hit.face)
     name = {0: "top", 1: "bottom"}.get(face, f"side {face - 2}")
     if int(cmd.status) != Status.OK:
         code = Status(int(cmd.status))
-        print(
-            f"jaxpose point: the point {mm(hit.point)} on face {face} ({name}) is out of the "
+        line = (
+            f"the point {mm(hit.point)} on face {face} ({name}) is out of the "
             f"robot's reach ({code.name}): {code.message}"
         )
+        print(f"jaxpose point: {line}")
+        record([f"# jaxpose point: {line}"], reached=False)
         return 1
 
     S = hit.covariance
@@ -641,6 +670,25 @@ def _cmd_point(args) -> int:
     )
     table.add_row("time", f"{elapsed:.2f} s (compilation included)")
     console.print(table)
+    along = math.sqrt(ray @ S @ ray)
+    record(
+        [
+            f"# jaxpose point ({u:g}, {v:g}): face {face} ({name})",
+            "",
+            f"- pose: {Status(int(sol.status)).name}, Eq. 8 error {float(sol.error):.3f} px",
+            f"- 3D point (world): {mm(hit.point)}, {float(hit.distance):.1f} mm from the camera",
+            f"- 1-sigma: {mm(np.sqrt(np.diag(S)))} in x, y, z; {along:.2f} mm along the ray"
+            " (ellipsoid drawn at 3 sigma)",
+            f"- robot joints: x {x:.2f} mm, y {y:.2f} mm, pan {math.degrees(pan):.2f} deg, "
+            f"tilt {math.degrees(tilt):.2f} deg; tip {mm(state.tip)}",
+        ]
+        + (
+            [f"- true surface point: {mm(truth.point)} on face {int(truth.face)}"]
+            if int(truth.status) == Status.OK
+            else []
+        ),
+        reached=True,
+    )
     return 0
 
 
@@ -713,8 +761,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="click a pixel of the bench: its 3D point, face, uncertainty and robot joints",
         description="Solve the default bench, intersect the visual ray of a clicked pixel "
         "with the recognised object's faces, and command the paper's 4-DOF robot to the "
-        "point (world frame, mm). Exit code 0 when the robot can reach it, 1 when there is "
-        "no face there or it is out of reach, 2 on bad input.",
+        "point (world frame, mm); --rrd/--spawn/--serve record the scene, the ray, the "
+        "point with its covariance and the robot for the rerun viewer. Exit code 0 when "
+        "the robot can reach it, 1 when there is no face there or it is out of reach, 2 on "
+        "bad input.",
     )
     pt.add_argument(
         "--pixel", type=float, nargs=2, required=True, metavar=("U", "V"), help="the click"
@@ -729,6 +779,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help="uncertainty of the click itself in px, added to the pose's (default 0)",
     )
+    _add_recording_options(pt)
     pt.set_defaults(func=_cmd_point)
     return parser
 

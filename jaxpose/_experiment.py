@@ -14,7 +14,7 @@ import numpy as np
 
 from ._bench import Scene
 from ._errors import pose_error
-from ._mixed import initial_poses, mixed_from_initial, triplet_indices
+from ._mixed import MixedResult, initial_poses, mixed_from_initial, triplet_indices
 from ._pose import Pose, observations
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
@@ -41,7 +41,9 @@ class ExperimentResult:
 
     `pose_error[m]` and `error[m]` are `(T,)` arrays per method `m` (mm and px);
     `status[m]` the per-triplet status codes; `used` marks the triplets the experiment
-    counts (non-degenerate, with a three-point solution).
+    counts (non-degenerate, with a three-point solution); `mixed` is the mixed
+    algorithm's full per-triplet outcome (`jaxpose.MixedResult`, numpy arrays: poses,
+    steps, roots), as `jaxpose.mixed` returns it.
     """
 
     triplets: np.ndarray
@@ -52,6 +54,7 @@ class ExperimentResult:
     status: dict[str, np.ndarray]
     threshold: float
     optimum_tol: float = 0.01
+    mixed: MixedResult | None = None
 
     @property
     def counts(self) -> dict[str, int]:
@@ -170,7 +173,7 @@ def _four_methods(camera, model, image, threshold):
         "linear": jnp.where(usable, lin_res.status, initial.status),
         "mixed": mix.status,
     }
-    return ({m: mm(p) for m, p in poses.items()}, errors, statuses, initial.status, mix.threshold)
+    return ({m: mm(p) for m, p in poses.items()}, errors, statuses, initial.status, mix)
 
 
 def run_experiment(scene: Scene, *, threshold: float | None = None) -> ExperimentResult:
@@ -185,7 +188,7 @@ def run_experiment(scene: Scene, *, threshold: float | None = None) -> Experimen
         jnp.asarray(scene.image_points, dtype),
         threshold,
     )
-    pose_err, err, status, initial_status, thr = jax.tree.map(np.asarray, out)
+    pose_err, err, status, initial_status, mix = jax.tree.map(np.asarray, out)
     return ExperimentResult(
         triplets=triplet_indices(n),
         used=initial_status == Status.OK,
@@ -193,7 +196,8 @@ def run_experiment(scene: Scene, *, threshold: float | None = None) -> Experimen
         pose_error=pose_err,
         error=err,
         status=status,
-        threshold=float(thr),
+        threshold=float(mix.threshold),
+        mixed=mix,
     )
 
 

@@ -1,9 +1,24 @@
-"""Shared helpers for the tests: reference poses and finite differences."""
+"""Shared helpers for the tests: reference poses, finite differences, recordings."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import cv2
 import numpy as np
+
+
+def verify_recording(path) -> None:
+    """`rerun rrd verify`, the rerun command line's own check that a file loads."""
+    out = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "verified without error" in out.stdout + out.stderr
 
 
 def central_difference_jacobian(f, x, h=1e-6):

@@ -5,6 +5,7 @@ import re
 
 import numpy as np
 import pytest
+from helpers import verify_recording
 
 import jaxpose as jp
 import jaxpose._robot as robot_module
@@ -90,3 +91,125 @@ def test_bad_input_is_one_line(capsys, argv, message):
 def test_missing_pixel(capsys):
     assert main(["point"]) == 2
     assert "--pixel" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- rerun recording
+
+
+def _static(path):
+    """Entity path -> its static row (the pointing recording has no timeline)."""
+    from rerun.chunk import RrdReader
+
+    rows = {}
+    for chunk in RrdReader(path).stream():
+        for row in chunk.to_record_batch().to_pylist():
+            rows.setdefault(chunk.entity_path, {}).update(
+                {k: v for k, v in row.items() if v is not None}
+            )
+    return rows
+
+
+def _quaternion_matrix(x, y, z, w):
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def test_point_recording(capsys, tmp_path):
+    """`--rrd`: the camera and image, the wireframe, the click and its ray, the point with
+    its covariance ellipsoid, the face and the robot reaching the point, as printed."""
+    uv, truth = _middle_pixel()
+    path = tmp_path / "sub" / "point.rrd"
+    rc = main(["point", "--pixel", f"{uv[0]:.3f}", f"{uv[1]:.3f}", "--rrd", str(path)])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert f"wrote {path}" in out
+    verify_recording(path)
+    rows = _static(path)
+    expected = {
+        "/world/camera",
+        "/world/camera/image",
+        "/world/camera/image/click",
+        "/world/camera/image/face",
+        "/world/camera/image/recovered/wireframe",
+        "/world/model/recovered",
+        "/world/pointing/ray",
+        "/world/pointing/point",
+        "/world/pointing/covariance",
+        "/world/pointing/face",
+        "/world/pointing/normal",
+        "/world/pointing/true_point",
+        "/world/robot/links",
+        "/world/robot/joints",
+        "/world/robot/travel",
+        "/world/robot/frames",
+        "/summary",
+    }
+    assert expected <= set(rows), expected - set(rows)
+    assert rows["/world/camera/image"].get("Image:buffer") is not None  # the bench image
+
+    point = _vector(out, r"3D point \(world\)")
+    np.testing.assert_allclose(
+        rows["/world/camera/image/click"]["Points2D:positions"][0], uv, atol=1e-3
+    )
+    hit = np.array(rows["/world/pointing/point"]["Points3D:positions"][0])
+    np.testing.assert_allclose(hit, point, atol=0.006)  # printed to 0.01 mm
+    np.testing.assert_allclose(
+        rows["/world/pointing/true_point"]["Points3D:positions"][0], truth, atol=0.01
+    )
+    # The ray runs from the camera centre through the point (and a little past it).
+    centre = BENCH.R_wc.T @ -BENCH.t_wc
+    start, end = np.array(rows["/world/pointing/ray"]["LineStrips3D:strips"][0])
+    np.testing.assert_allclose(start, centre, atol=1e-3)
+    d = (end - start) / np.linalg.norm(end - start)
+    along = (hit - start) @ d
+    assert 0 < along < np.linalg.norm(end - start)
+    assert np.linalg.norm(hit - start - along * d) < 1e-2
+    # The 3-sigma ellipsoid: its covariance has the printed sigma along the ray.
+    e = rows["/world/pointing/covariance"]
+    np.testing.assert_allclose(e["Ellipsoids3D:centers"][0], hit, atol=1e-3)
+    Q = _quaternion_matrix(*e["Ellipsoids3D:quaternions"][0])
+    S = Q @ np.diag((np.array(e["Ellipsoids3D:half_sizes"][0]) / 3) ** 2) @ Q.T
+    sigma = float(re.search(rf"{FLOAT} mm along the ray", out).group(1))
+    assert math.sqrt(d @ S @ d) == pytest.approx(sigma, abs=0.006)
+    # The face hit: the top face's outline (12 corners, closed), the point in its plane.
+    outline = np.array(rows["/world/pointing/face"]["LineStrips3D:strips"][0])
+    assert len(outline) == 13 and np.allclose(outline[0], outline[-1])
+    normal = np.array(rows["/world/pointing/normal"]["Arrows3D:vectors"][0])
+    assert np.abs((outline - hit) @ normal / np.linalg.norm(normal)).max() < 1e-2
+    # The robot: its shank (from forward kinematics) ends at the point; shank length kept.
+    strips = rows["/world/robot/links"]["LineStrips3D:strips"]
+    labels = rows["/world/robot/links"]["LineStrips3D:labels"]
+    wrist, tip = np.array(strips[labels.index("shank")])
+    np.testing.assert_allclose(tip, hit, atol=1e-3)
+    assert np.linalg.norm(tip - wrist) == pytest.approx(float(default_robot().shank), rel=1e-6)
+    np.testing.assert_allclose(rows["/world/robot/joints"]["Points3D:positions"][1], hit, atol=1e-3)
+    summary = rows["/summary"]["TextDocument:text"][0]
+    assert "face 0 (top)" in summary and "robot joints" in summary
+
+
+def test_point_recording_no_face(capsys, tmp_path):
+    """No face under the click: the one line, and a recording of the ray alone."""
+    path = tmp_path / "miss.rrd"
+    rc = main(["point", "--pixel", "5", "5", "--rrd", str(path)])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert out.splitlines()[0].startswith("jaxpose point: no face at pixel (5, 5)")
+    verify_recording(path)
+    rows = _static(path)
+    assert {"/world/pointing/ray", "/world/camera/image/click", "/world/model/recovered"} <= set(
+        rows
+    )
+    assert not any(p.startswith(("/world/robot", "/world/pointing/point")) for p in rows)
+    assert "no face" in rows["/summary"]["TextDocument:text"][0]
+
+
+def test_point_recording_bad_path_fails_fast(capsys, tmp_path):
+    rc = main(["point", "--pixel", "10", "10", "--rrd", str(tmp_path / "x.txt")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "--rrd must name a .rrd file" in err and err.strip().count("\n") == 0

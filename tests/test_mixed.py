@@ -52,6 +52,20 @@ def test_mixed_reaches_the_optimum(experiments):
         assert result.optimum == pytest.approx(ref, rel=1e-6)
 
 
+def test_experiment_keeps_the_mixed_result(experiments):
+    bench, result = experiments[0]
+    mix = result.mixed
+    np.testing.assert_array_equal(mix.status, result.status["mixed"])
+    np.testing.assert_array_equal(mix.error, result.error["mixed"])
+    np.testing.assert_array_equal(mix.initial.triplets, result.triplets)
+    assert mix.pose.R.shape == (560, 3, 3) and float(mix.threshold) == result.threshold
+    mm = [
+        float(jp.pose_error(bench.camera, R, t, bench.model_points, bench.image_points))
+        for R, t in zip(mix.pose.R[result.used][:20], mix.pose.t[result.used][:20])
+    ]
+    np.testing.assert_allclose(mm, result.pose_error["mixed"][result.used][:20], rtol=1e-9)
+
+
 def test_mixed_statuses_are_consistent(experiments):
     _, result = experiments[0]
     status = result.status["mixed"]

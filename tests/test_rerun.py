@@ -9,23 +9,12 @@ from collections import defaultdict
 import jax
 import numpy as np
 import pytest
+from helpers import verify_recording
 from rerun.chunk import RrdReader
 
 import jaxpose as jp
 from jaxpose._experiment import METHOD_NAMES, ExperimentResult
 from jaxpose._status import Status
-
-
-def _verify(path):
-    """`rerun rrd verify`, the rerun command line's own check that a file loads."""
-    out = subprocess.run(
-        [sys.executable, "-m", "rerun", "rrd", "verify", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert out.returncode == 0, out.stdout + out.stderr
-    assert "verified without error" in out.stdout + out.stderr
 
 
 def _rows(path):
@@ -91,7 +80,7 @@ def test_solution_recording(tmp_path, bench, mixed_result):
         image_size=bench.image_size,
     )
     jp.close_recording(rec)
-    _verify(path)
+    verify_recording(path)
     rows = _rows(path)
     expected = {
         "/world",
@@ -197,7 +186,7 @@ def test_experiment_recording(tmp_path, bench, mixed_result):
     rec = jp.rerun_recording(path)
     jp.log_experiment(rec, bench, result, res)
     jp.close_recording(rec)
-    _verify(path)
+    verify_recording(path)
     rows = _rows(path)
     used = set(np.flatnonzero(result.used).tolist())
     for m in METHOD_NAMES:
@@ -233,7 +222,7 @@ def test_three_point_only_and_points_only(tmp_path, bench, mixed_result):
         triplets=mixed_result.initial,
     )
     jp.close_recording(rec)
-    _verify(path)
+    verify_recording(path)
     rows = _rows(path)
     assert "/world/model/recovered" not in rows and "/world/triplets/three_point" not in rows
     assert "/world/points/recovered" in rows and "/world/triplets/hypothesis" in rows
@@ -259,3 +248,64 @@ def test_three_point_only_and_points_only(tmp_path, bench, mixed_result):
 def test_import_stays_light():
     code = "import sys, jaxpose; assert 'rerun' not in sys.modules, 'rerun imported eagerly'"
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_pointing_recording(tmp_path, bench):
+    """`log_pointing` from the public API: a hit with its ellipsoid, the face outline, and
+    a robot whose base is moved and turned (forward kinematics in the world)."""
+    point = np.array([1.0, 2.0, 10.0]) @ bench.R.T + bench.t
+    axes = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    S = axes @ np.diag([4.0, 1.0, 0.25]) @ axes.T
+    hit = jp.Hit(point, np.int32(0), np.float64(2000.0), bench.R[:, 2], S, np.int32(0))
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    robot = jp.default_robot()._replace(base_R=turn, base_t=np.array([10.0, -5.0, 2.0]))
+    joints = np.array([30.0, -40.0, 0.5, 0.3])
+    path = tmp_path / "point.rrd"
+    rec = jp.rerun_recording(path)
+    jp.log_pointing(
+        rec,
+        bench.camera,
+        (400.0, 250.0),
+        hit,
+        (bench.R, bench.t),
+        polyhedron=bench.model,
+        robot=robot,
+        joints=joints,
+        n_sigma=2.0,
+    )
+    jp.close_recording(rec)
+    verify_recording(path)
+    rows = _rows(path)
+    e = {
+        k: _only(rows, "/world/pointing/covariance", f"Ellipsoids3D:{k}")[0]
+        for k in ("half_sizes", "quaternions")
+    }
+    np.testing.assert_allclose(sorted(e["half_sizes"]), [1.0, 2.0, 4.0], rtol=1e-6)
+    x, y, z, w = e["quaternions"]
+    Q = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    np.testing.assert_allclose(
+        Q @ np.diag((np.array(e["half_sizes"]) / 2) ** 2) @ Q.T, S, atol=1e-5
+    )
+    outline = np.asarray(_only(rows, "/world/pointing/face", "LineStrips3D:strips")[0])
+    top = bench.model.vertices[list(bench.model.faces[0])] @ bench.R.T + bench.t
+    np.testing.assert_allclose(outline[:-1], top, atol=1e-3)
+    state = jax.jit(jp.forward_kinematics)(robot, joints)
+    strips = _only(rows, "/world/robot/links", "LineStrips3D:strips")
+    np.testing.assert_allclose(strips[-1], [state.wrist, state.tip], atol=1e-3)
+    # Without a hit nor a robot: the click and its ray only.
+    rec = jp.rerun_recording(tmp_path / "miss.rrd")
+    jp.log_pointing(
+        rec, bench.camera, (5.0, 5.0), None, (bench.R, bench.t), model_points=bench.model_points
+    )
+    jp.close_recording(rec)
+    rows = _rows(tmp_path / "miss.rrd")
+    assert "/world/pointing/ray" in rows and "/world/camera/image/click" in rows
+    assert not any(p.startswith(("/world/robot", "/world/pointing/point")) for p in rows)
+    with pytest.raises(ValueError, match="model_points or a polyhedron"):
+        jp.log_pointing(rec, bench.camera, (5.0, 5.0), None, (bench.R, bench.t))
