@@ -148,8 +148,9 @@ def test_p3p_float32(data):
     best = pose_errors(Rs, ts, valid, data["R"], data["t"]).min(axis=1)
     rate4, rate3 = np.mean(best < 1e-4), np.mean(best < 1e-3)
     print(f"float32 true-pose rate: {rate4:.4f} (error < 1e-4), {rate3:.4f} (< 1e-3)")
-    # Measured: 95.0% within 1e-4 and 99.2% within 1e-3 (float64: 100% within 1e-9).
-    assert rate4 >= 0.93 and rate3 >= 0.98
+    # Measured: 99.2% within 1e-4 and 99.85% within 1e-3 (float64: 100% within 1e-9);
+    # 95.0% and 99.2% before the polish used the cancellation-free equations.
+    assert rate4 >= 0.98 and rate3 >= 0.995
 
 
 def test_p3p_degenerate_inputs_finite():
@@ -167,12 +168,6 @@ def test_p3p_degenerate_inputs_finite():
     assert not valid[[0, 1, 2, 4, 5]].any()
 
 
-@pytest.mark.xfail(
-    reason="known gap: exactly symmetric configurations (e.g. an isosceles right triangle "
-    "at equal depths, quat=[0,0,0,1], trans=[0,0,1], rays=[0,.5,0,0,.25,0], depths=[.5]*3) "
-    "give the cubic repeated roots and the degenerate-member choice can miss the true pose",
-    strict=False,
-)
 @example(
     quat=[0.0, 0.0, 0.0, 1.0],
     trans=[0.0, 0.0, 1.0],
@@ -212,9 +207,177 @@ def test_p3p_property(quat, trans, rays, depths):
         assert np.all(np.einsum("ni,ni->n", p, f) > 0)
         err = np.linalg.norm(p / np.linalg.norm(p, axis=1, keepdims=True) - f, axis=1)
         assert err.max() < 1e-8
-    # and the true pose is among them
-    best = pose_errors(Rs[None], ts[None], valid[None], R[None], t[None]).min()
-    assert best < 1e-6
+    # and the true pose is among them: to 1e-6, or, where it is a multiple solution (the
+    # camera on the danger cylinder, e.g. right above a vertex of a fronto-parallel
+    # triangle, as in the @example), to 1e-4 with the translation error relative to the
+    # scene's distance (|t| may be tiny): a k-fold solution moves by ~eps^(1/k) when the
+    # data are rounded (see test_p3p_symmetric_configurations_float64)
+    if _depth_jacobian_conditioning(pc) > 1e-6:
+        best = pose_errors(Rs[None], ts[None], valid[None], R[None], t[None]).min()
+        assert best < 1e-6
+    else:
+        scale = max(np.linalg.norm(t), np.linalg.norm(pc, axis=1).max())
+        eR = np.linalg.norm(Rs - R, axis=(-2, -1))
+        et = np.linalg.norm(ts - t, axis=-1) / scale
+        assert np.where(valid, np.maximum(eR, et), np.inf).min() < 1e-4
+
+
+def _depth_jacobian_conditioning(pc):
+    """Smallest over largest singular value of the Jacobian of the three law-of-cosines
+    equations at the true depths (camera-frame points `pc` (3, 3)); 0 at a multiple
+    solution."""
+    lam = np.linalg.norm(pc, axis=1)
+    f = pc / lam[:, None]
+    rows = []
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        row = np.zeros(3)
+        row[i], row[j] = lam[i] - (f[i] @ f[j]) * lam[j], lam[j] - (f[i] @ f[j]) * lam[i]
+        rows.append(row)
+    sv = np.linalg.svd(np.array(rows), compute_uv=False)
+    return sv[-1] / sv[0]
+
+
+# --------------------------------------------------------------------------------------
+# symmetric configurations
+
+
+def _unit_triangle(kind):
+    """A planar triangle (z = 0) of the given shape, vertex 0 first."""
+    if kind == "equilateral":
+        a = np.deg2rad([90.0, 210.0, 330.0])
+        return np.stack([np.cos(a), np.sin(a), np.zeros(3)], 1)
+    return {
+        "isosceles_right": np.array([[0.0, 1, 0], [0, 0, 0], [1, 0, 0]]),  # right angle at 1
+        "isosceles_narrow": np.array([[0.0, 3, 0], [-0.5, 0, 0], [0.5, 0, 0]]),  # apex 0
+        "isosceles_wide": np.array([[0.0, 0.3, 0], [-1, 0, 0], [1, 0, 0]]),  # apex 0
+        "right_2_1": np.array([[0.0, 0.5, 0], [0, 0, 0], [0.25, 0, 0]]),  # the reported one
+    }[kind]
+
+
+def _circumcentre(T):
+    a, b = T[0] - T[2], T[1] - T[2]
+    n = np.cross(a, b)
+    return T[2] + np.cross(np.dot(a, a) * b - np.dot(b, b) * a, n) / (2 * np.dot(n, n))
+
+
+# (family, triangle, foot of the optical axis on the triangle's plane). The camera looks
+# straight at the plane (equal depths), from above the foot point:
+# - above the circumcentre the three points are also at equal distances;
+# - above a vertex the camera lies on the "danger cylinder" (every vertex is on the
+#   circumcircle): the true pose is a double solution, determined to ~sqrt(eps) only.
+SYMMETRIC = [
+    ("simple", "equilateral", "circumcentre"),
+    ("simple", "equilateral", "midpoint"),
+    ("simple", "isosceles_right", "centroid"),
+    ("simple", "isosceles_right", "circumcentre"),
+    ("simple", "isosceles_narrow", "centroid"),
+    ("simple", "isosceles_wide", "circumcentre"),
+    ("simple", "right_2_1", "centroid"),
+    ("double", "equilateral", "vertex0"),
+    ("double", "isosceles_right", "vertex1"),
+    ("double", "isosceles_narrow", "vertex0"),
+    ("double", "isosceles_wide", "vertex1"),
+    ("double", "right_2_1", "vertex1"),  # the reported configuration, up to scale
+]
+
+
+def symmetric_instances(rng, copies):
+    """`copies` instances of each SYMMETRIC configuration: a quarter as is (identity model
+    pose, the reported example's), a quarter with the camera rotated about its centre (the
+    symmetry stays, the bearings become generic), a quarter with a random model pose, a
+    quarter with both. Returns the `instances` dictionary plus `family` per instance."""
+    out = {k: [] for k in ("R", "t", "m", "f", "family")}
+    for k in range(copies):
+        variant = k % 4
+        for family, kind, foot in SYMMETRIC:
+            T = _unit_triangle(kind)
+            centre = {
+                "circumcentre": _circumcentre(T),
+                "centroid": T.mean(0),
+                "midpoint": (T[1] + T[2]) / 2,
+                "vertex0": T[0],
+                "vertex1": T[1],
+            }[foot]
+            T = (T - centre) * rng.uniform(0.1, 3.0)
+            height = np.max(np.linalg.norm(T, axis=1)) * rng.uniform(0.5, 6.0)
+            pc = T + [0.0, 0.0, height]
+            if variant in (1, 3):
+                pc = pc @ random_rotations(rng, 1)[0].T
+            R, t = np.eye(3), np.array([0.0, 0.0, 1.0])
+            if variant >= 2:
+                R, t = random_rotations(rng, 1)[0], rng.normal(size=3)
+            out["R"].append(R)
+            out["t"].append(t)
+            out["m"].append((pc - t) @ R)  # pc = R m + t
+            out["f"].append(pc / np.linalg.norm(pc, axis=1, keepdims=True))
+            out["family"].append(family)
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+REPORTED = {  # the @example of test_p3p_property: a 2:1 right triangle at equal depths
+    "rays": np.array([[0.0, 0.5], [0.0, 0.0], [0.25, 0.0]]),  # seen from above vertex 1
+    "depths": np.array([0.5, 0.5, 0.5]),
+    "t": np.array([0.0, 0.0, 1.0]),
+}
+
+
+@pytest.fixture(scope="module")
+def symmetric():
+    data = symmetric_instances(np.random.default_rng(2024), 40)
+    pc = np.concatenate([REPORTED["rays"], np.ones((3, 1))], 1) * REPORTED["depths"][:, None]
+    for key, val in (
+        ("R", np.eye(3)),
+        ("t", REPORTED["t"]),
+        ("m", pc - REPORTED["t"]),
+        ("f", pc / np.linalg.norm(pc, axis=1, keepdims=True)),
+        ("family", "reported"),
+    ):
+        data[key] = np.concatenate([data[key], np.asarray(val)[None]])
+    return data
+
+
+def test_p3p_symmetric_configurations_float64(symmetric):
+    """Equal-depth and equal-distance triangles (equilateral, isosceles, right), the
+    reported example, and random rotations / model poses of them: the true pose is found.
+
+    Simple solutions to 1e-9 like random instances (measured max 5e-13); double solutions
+    (camera on the danger cylinder) to 1e-4: the rounded data have two real solutions
+    ~sqrt(eps) either side of the double one, or none (measured here: max 4.6e-6, median
+    2e-11; up to 2.4e-5 over 1600 such instances)."""
+    data = symmetric
+    Rs, ts, valid = run_p3p(data["f"], data["m"])
+    assert np.isfinite(Rs).all() and np.isfinite(ts).all()
+    best = pose_errors(Rs, ts, valid, data["R"], data["t"]).min(axis=1)
+    simple = data["family"] == "simple"
+    assert np.all(best[simple] < 1e-9), np.sort(best[simple])[-3:]
+    assert np.all(best[~simple] < 1e-4), np.sort(best[~simple])[-3:]
+    assert best[data["family"] == "reported"][0] < 1e-6
+    # every valid slot, double roots included, is an exact solution of the given data
+    idx, slot = np.nonzero(valid)
+    pc = np.einsum("sij,snj->sni", Rs[idx, slot], data["m"][idx]) + ts[idx, slot][:, None]
+    bearing_err = np.linalg.norm(
+        pc / np.linalg.norm(pc, axis=-1, keepdims=True) - data["f"][idx], axis=-1
+    )
+    assert bearing_err.max() < 1e-10
+
+
+def test_p3p_symmetric_configurations_float32(symmetric):
+    """Same in float32. Simple solutions within 2e-3 (measured max 1.7e-4; 8.5e-4 over
+    4000 such instances); a double solution is determined to ~sqrt(eps) = 3e-4 times the
+    conditioning only, and rounding the data to float32 can make it complex: found within
+    1e-2 in 92% of the instances here (median error 4.7e-4), and in the reported example
+    itself (measured 9e-6)."""
+    data = symmetric
+    Rs, ts, valid = run_p3p(data["f"], data["m"], jnp.float32)
+    assert Rs.dtype == np.float32
+    assert np.isfinite(Rs).all() and np.isfinite(ts).all()
+    best = pose_errors(Rs, ts, valid, data["R"], data["t"]).min(axis=1)
+    simple = data["family"] == "simple"
+    double = data["family"] == "double"
+    print(f"float32 double solutions within 1e-2: {np.mean(best[double] < 1e-2):.3f}")
+    assert np.all(best[simple] < 2e-3), np.sort(best[simple])[-3:]
+    assert np.mean(best[double] < 1e-2) >= 0.8
+    assert best[data["family"] == "reported"][0] < 1e-4
 
 
 # --------------------------------------------------------------------------------------
