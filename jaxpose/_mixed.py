@@ -30,6 +30,26 @@ is a local minimum (on the bench, one triplet's best root is 120 degrees from th
 every method ends at 18 px). Triplets that fail steps 2-4 run them again from their
 other roots (`second_chance_budget` triplets, in a buffer); `MixedResult.root` says
 which root an accepted pose came from.
+
+Three more departures, for optima that are flat and carry a large residual (planar scenes
+with few matches and noisy pixels: n = 4 leaves two residual degrees of freedom):
+- Step 4: where the linear run from LM's converged pose does not converge, LM's pose
+  stands (accepted if below the threshold). The linear method is Gauss-Newton on Eq. 8, and
+  Gauss-Newton is repelled from a minimum whose residual term outweighs its curvature; LM's
+  own convergence test (stationarity) holds there.
+- Patience: LM converges only linearly at such an optimum and can run out of `max_steps`
+  sitting on it. A triplet whose LM ran out of steps also restarts from where it stopped
+  in the second chance, and the retries (second chance, planar partner) give LM
+  `PATIENCE` times `max_steps`.
+- Planar partner: a plane is imaged nearly alike in two attitudes, its normal `n` or `n`
+  reflected about the line of sight to its centroid (IPPE's two solutions), so every
+  triplet's best root can lie in the basin of the wrong one. For a coplanar model (within
+  `FLAT_TOL`), the answer's partner pose (`_planar_partner`) runs steps 2-4 once per
+  problem and replaces it when accepted with a lower error (`root == PARTNER_ROOT`). A
+  model that is not coplanar skips it (the buffer loop runs no pass).
+
+On the synthetic protocol (planar, sigma = 2 px) these took the share of trials at the
+ML optimum from 98.9% to 100% at n = 4 (2000 trials) and from 99.85% to 100% at n = 6.
 """
 
 from __future__ import annotations
@@ -45,6 +65,7 @@ from jaxtyping import Array, Float, Int
 
 from ._pose import Observations, Pose, transform
 from ._residuals import in_front, pixel_residuals, rms, rounding_level
+from ._rotation import rotvec_to_matrix
 from ._solver.linear import linear
 from ._solver.nonlinear import nonlinear
 from ._solver.p3p import three_point
@@ -126,7 +147,8 @@ class MixedResult(NamedTuple):
     - `linear_pose`, `linear_error`, `linear_status`: step 2.
     - `threshold`: the acceptance threshold used (px).
     - `root`: which three-point root the pose came from, by rank of Eq. 8 error (0: the
-      best; 1-3: another, after the best led to a local minimum).
+      best; 1-3: another, after the best led to a local minimum; `PARTNER_ROOT` (4): the
+      planar partner of the answer).
     """
 
     pose: Pose
@@ -211,6 +233,55 @@ def spread_triplets(
     return rows, cand[rows]
 
 
+# Flatness below which a model counts as coplanar (planar partner start): RMS distance to
+# its best-fit plane over its RMS extent along the plane's narrower direction.
+FLAT_TOL = 1e-2
+
+# `MixedResult.root` of a pose that came from the planar partner start.
+PARTNER_ROOT = 4
+
+# Levenberg-Marquardt's iteration budget in the retries (second chance, planar partner),
+# in units of `max_steps`.
+PATIENCE = 4
+
+
+def _planar_partner(obs: Observations, pose: Pose) -> tuple[Pose, Array]:
+    """The planar-ambiguity partner of `pose` (one problem), and whether the model is
+    coplanar (within `FLAT_TOL`).
+
+    A plane seen from afar is imaged nearly alike in two attitudes: its normal `n` and the
+    normal reflected about the line of sight `v` to its centroid `p_c`,
+    `n' = 2 (n . v) v - n` (IPPE's two solutions). The partner is `pose` rotated about
+    `p_c` by the rotation `Q` taking `n` to `n'` (about `n x v`, twice their angle):
+    `R' = Q R`, `t' = Q (t - p_c) + p_c`. On the plane `Q` acts as the mirror through
+    the plane normal to `v` at `p_c`, which an orthographic view along `v` cannot tell
+    apart from the identity."""
+    dtype = pose.R.dtype
+    w = obs.mask.astype(dtype)
+    count = jnp.maximum(jnp.sum(w), 1)
+    centre = jnp.sum(obs.model * w[:, None], axis=0) / count
+    X = (obs.model - centre[None, :]) * w[:, None]
+    evals, evecs = jnp.linalg.eigh(X.T @ X / count)  # ascending
+    flat = (evals[0] <= FLAT_TOL**2 * evals[1]) & (evals[1] > 0) & (jnp.sum(w) >= 4)
+    n = pose.R @ evecs[:, 0]
+    p_c = pose.R @ centre + pose.t
+    eye = jnp.finfo(dtype).eps ** 0.5
+    # Camera centre `o`: `C [o 1]^T = 0`.
+    o = -jnp.linalg.solve(obs.camera[:, :3], obs.camera[:, 3])
+    sight = p_c - o
+    v = sight / jnp.maximum(jnp.linalg.norm(sight), jnp.finfo(dtype).tiny)
+    n = jnp.where(jnp.dot(n, v) < 0, -n, n)  # angle to v in [0, pi/2]
+    axis = jnp.cross(n, v)
+    s = jnp.linalg.norm(axis)
+    angle = jnp.arctan2(s, jnp.dot(n, v))
+    big = s > eye
+    rotvec = jnp.where(big, 2 * angle * axis / jnp.where(big, s, 1), 2 * axis)
+    Q = rotvec_to_matrix(rotvec)
+    partner = Pose(Q @ pose.R, Q @ (pose.t - p_c) + p_c)
+    ok = flat & jnp.all(jnp.isfinite(partner.R)) & jnp.all(jnp.isfinite(partner.t))
+    return jax.tree.map(lambda a, b: jnp.where(ok, a, b), partner, pose), ok
+
+
 def _where_pose(pred, a: Pose, b: Pose) -> Pose:
     return Pose(jnp.where(pred[:, None, None], a.R, b.R), jnp.where(pred[:, None], a.t, b.t))
 
@@ -277,6 +348,7 @@ def mixed_from_initial(
     linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
     second_chance_budget: int = 8,
+    planar_partner: bool = True,
     max_steps: int = 50,
     chunk: int | None = None,
 ) -> MixedResult:
@@ -290,6 +362,7 @@ def mixed_from_initial(
         linear_iterations=linear_iterations,
         nonlinear_budget=nonlinear_budget,
         second_chance_budget=second_chance_budget,
+        planar_partner=planar_partner,
         max_steps=max_steps,
         chunk=chunk,
     )
@@ -305,6 +378,7 @@ def mixed_from_initial_batch(
     linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
     second_chance_budget: int = 8,
+    planar_partner: bool = True,
     max_steps: int = 50,
     chunk: int | None = None,
 ) -> MixedResult:
@@ -340,8 +414,9 @@ def mixed_from_initial_batch(
     else:
         thr = jnp.full((B,), threshold, dtype)
 
-    def after_linear(problem, start: Pose, res):
-        """Steps 3-4 after a linear run `res` from `start`: (pose, error, status)."""
+    def after_linear(problem, start: Pose, res, steps: int = max_steps):
+        """Steps 3-4 after a linear run `res` from `start` (LM with `steps` iterations at
+        most): (pose, error, status)."""
         o = jax.tree.map(lambda x: x[problem], obs)
         th = thr[problem]
         accepted = (res.status == Status.OK) & (res.error < th)
@@ -349,11 +424,18 @@ def mixed_from_initial_batch(
             res.status != Status.NOT_FINITE
         )
         lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
-        nl = nonlinear(o, lm_start, max_steps=max_steps)
+        nl = nonlinear(o, lm_start, max_steps=steps)
         again = run_linear(o, nl.pose)
-        accepted4 = (nl.status == Status.OK) & (again.status == Status.OK) & (again.error < th)
+        lm_ok = nl.status == Status.OK
+        # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
+        # converged (stationary) pose stands: Gauss-Newton can be repelled from an optimum
+        # whose residual is large next to its curvature (few matches, planar scenes).
+        use_nl = lm_ok & (again.status != Status.OK)
+        pose4 = jax.tree.map(lambda a, b: jnp.where(use_nl, a, b), nl.pose, again.pose)
+        error4 = jnp.where(use_nl, nl.error, again.error)
+        accepted4 = lm_ok & (error4 < th)
         status = jnp.select(
-            [accepted, accepted4, nl.status != Status.OK],
+            [accepted, accepted4, ~lm_ok],
             [
                 Status.ACCEPTED_LINEAR,
                 Status.ACCEPTED_AFTER_NONLINEAR,
@@ -361,9 +443,14 @@ def mixed_from_initial_batch(
             ],
             Status.REJECTED,
         )
-        use_again = ~accepted & (again.error < res.error)
-        pose = jax.tree.map(lambda a, b: jnp.where(use_again, a, b), again.pose, res.pose)
-        return pose, jnp.where(use_again, again.error, res.error), status.astype(jnp.int32)
+        # Not accepted: the lowest-error pose reached (linear run, LM, linear after LM).
+        errors = jnp.stack([res.error, nl.error, again.error])
+        last = jnp.argmin(errors)
+        pick = jnp.where(accepted, 0, jnp.where(accepted4, 3, last))
+        poses = [res.pose, nl.pose, again.pose, pose4]
+        pose = Pose(jnp.stack([q.R for q in poses])[pick], jnp.stack([q.t for q in poses])[pick])
+        error = jnp.concatenate([errors, error4[None]])[pick]
+        return pose, error, status.astype(jnp.int32)
 
     def flat(x):
         return x.reshape(B * T, *x.shape[2:])
@@ -393,35 +480,79 @@ def mixed_from_initial_batch(
     error = jnp.where(need, error3, lin.error)
 
     # Second chance: a triplet whose best root led to a local minimum (rejected, or LM
-    # failed) starts over from each of its other roots (at most `second_chance_budget`
-    # triplets per problem, lowest error first).
+    # failed) starts over from each of its other roots, and one whose LM ran out of steps
+    # also carries on from where it stopped (at most `second_chance_budget` triplets per
+    # problem, lowest error first).
     root = jnp.zeros((B, T), jnp.int32)
+
+    def from_start(problem, start: Pose):
+        # The retries are rare: LM gets `PATIENCE` times its budget (slow, linear
+        # convergence at a flat optimum is what stalls it).
+        o = jax.tree.map(lambda x: x[problem], obs)
+        return after_linear(problem, start, run_linear(o, start), PATIENCE * max_steps)
+
     if second_chance_budget > 0:
         failed = need & ~Status.is_success(status)
         failed = jax.vmap(_ranked, in_axes=(0, 0, None))(failed, error, second_chance_budget)
-        alt_need = failed[:, :, None] & (initial.alt_error < big)  # (B, T, 3)
-
-        def from_root(problem, start: Pose):
-            o = jax.tree.map(lambda x: x[problem], obs)
-            return after_linear(problem, start, run_linear(o, start))
-
-        pose_b, error_b, status_b = _where_needed(
-            from_root,
-            alt_need.reshape(-1),
-            initial.alt_error.reshape(-1),
-            k,
-            jnp.repeat(jnp.arange(B), 3 * T),
-            jax.tree.map(lambda x: x.reshape(B * T * 3, *x.shape[3:]), initial.alt_pose),
+        stalled = failed & (status == Status.NONLINEAR_NOT_CONVERGED) & (error < big)
+        alt_need = jnp.concatenate(
+            [failed[:, :, None] & (initial.alt_error < big), stalled[:, :, None]], axis=2
+        )  # (B, T, 4): the three other roots, then the stalled pose
+        starts = Pose(
+            jnp.concatenate([initial.alt_pose.R, pose.R[:, :, None]], axis=2),
+            jnp.concatenate([initial.alt_pose.t, pose.t[:, :, None]], axis=2),
         )
-        won = alt_need & Status.is_success(status_b).reshape(B, T, 3)
-        error_b = jnp.where(won, error_b.reshape(B, T, 3), big)
+        start_error = jnp.concatenate([initial.alt_error, error[:, :, None]], axis=2)
+        pose_b, error_b, status_b = _where_needed(
+            from_start,
+            alt_need.reshape(-1),
+            start_error.reshape(-1),
+            k,
+            jnp.repeat(jnp.arange(B), 4 * T),
+            jax.tree.map(lambda x: x.reshape(B * T * 4, *x.shape[3:]), starts),
+        )
+        won = alt_need & Status.is_success(status_b).reshape(B, T, 4)
+        error_b = jnp.where(won, error_b.reshape(B, T, 4), big)
         pick = jnp.argmin(error_b, axis=2)
         won_any = jnp.any(won, axis=2)
-        rows = (jnp.arange(B * T) * 3 + pick.reshape(-1)).reshape(B, T)
+        rows = (jnp.arange(B * T) * 4 + pick.reshape(-1)).reshape(B, T)
         status = jnp.where(won_any, status_b[rows], status)
         pose = jax.vmap(_where_pose)(won_any, jax.tree.map(lambda x: x[rows], pose_b), pose)
         error = jnp.where(won_any, jnp.take_along_axis(error_b, pick[..., None], 2)[..., 0], error)
-        root = jnp.where(won_any, 1 + pick, root)
+        root = jnp.where(won_any & (pick < 3), 1 + pick, root)
+
+    # Planar partner: for a coplanar model, the answer (best triplet) may sit in the wrong
+    # one of the two minima of the planar ambiguity; its partner pose starts steps 2-4
+    # once (one start per problem, only for coplanar models).
+    if planar_partner:
+        best, _ = jax.vmap(best_triplet)(jnp.where(usable, error, big), status)  # (B,)
+        b = jnp.arange(B)
+        partner, flat = jax.vmap(_planar_partner)(obs, jax.tree.map(lambda x: x[b, best], pose))
+        p_need = flat & usable[b, best]
+
+        def partner_pass(state):
+            pose, error, status, root = state
+            pose_p, error_p, status_p = _where_needed(
+                from_start, p_need, error[b, best], k, b, partner
+            )
+            won = (
+                p_need
+                & Status.is_success(status_p)
+                & (~Status.is_success(status[b, best]) | (error_p < error[b, best]))
+            )
+            status = status.at[b, best].set(jnp.where(won, status_p, status[b, best]))
+            error = error.at[b, best].set(jnp.where(won, error_p, error[b, best]))
+            pose = Pose(
+                pose.R.at[b, best].set(jnp.where(won[:, None, None], pose_p.R, pose.R[b, best])),
+                pose.t.at[b, best].set(jnp.where(won[:, None], pose_p.t, pose.t[b, best])),
+            )
+            root = root.at[b, best].set(jnp.where(won, PARTNER_ROOT, root[b, best]))
+            return pose, error, status, root
+
+        # (Skipped outright, not only by the buffer loop, when no problem needs it.)
+        pose, error, status, root = jax.lax.cond(
+            jnp.any(p_need), partner_pass, lambda state: state, (pose, error, status, root)
+        )
 
     # A triplet that was not accepted reports the better of its last pose and its
     # three-point start, never a pose with points behind the camera.
@@ -445,6 +576,7 @@ def mixed(
     linear_iterations: int = 5,
     nonlinear_budget: int | None = None,
     second_chance_budget: int = 8,
+    planar_partner: bool = True,
     max_steps: int = 50,
     triplets: np.ndarray | None = None,
 ) -> MixedResult:
@@ -458,7 +590,9 @@ def mixed(
     - `collinear_tol`: model-triangle collinearity tolerance (scale-free).
     - `linear_iterations`: steps of each linear run.
     - `nonlinear_budget`: most triplets sent to Levenberg-Marquardt (`None`: all).
-    - `second_chance_budget`: most failed triplets retried from their second root.
+    - `second_chance_budget`: most failed triplets retried from their other roots.
+    - `planar_partner`: for a coplanar model, also start from the planar-ambiguity partner
+      of the best pose.
     - `max_steps`: Levenberg-Marquardt's iteration budget.
     - `triplets`: `(T, 3)` index triplets to use (default: all `C(n, 3)`).
 
@@ -473,6 +607,7 @@ def mixed(
         linear_iterations=linear_iterations,
         nonlinear_budget=nonlinear_budget,
         second_chance_budget=second_chance_budget,
+        planar_partner=planar_partner,
         max_steps=max_steps,
     )
 
