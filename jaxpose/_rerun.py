@@ -213,13 +213,9 @@ def rerun_blueprint(
         series.append(
             rrb.TimeSeriesView(origin="metrics/pose_error_mm", name="pose error per triplet")
         )
-    controls = _eye_controls(eye)
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(
-                rrb.Spatial3DView(origin="world", name="scene", eye_controls=controls),
-                rrb.Spatial2DView(origin="world/camera/image", name="image"),
-            ),
+            _scene_and_image(eye),
             rrb.Horizontal(
                 *series,
                 rrb.Tabs(
@@ -910,6 +906,16 @@ def log_experiment(
 # --------------------------------------------------------------------------- pointing
 
 
+def _scene_and_image(eye):
+    """The 3D scene (its eye from `_eye_controls`) beside the camera image."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(
+        rrb.Spatial3DView(origin="world", name="scene", eye_controls=_eye_controls(eye)),
+        rrb.Spatial2DView(origin="world/camera/image", name="image"),
+    )
+
+
 def _eye_controls(eye):
     """rerun's 3D eye from `(position, look_target, up)`, or `None`."""
     import rerun.blueprint as rrb
@@ -927,13 +933,9 @@ def pointing_blueprint(
     point, robot) and the camera image side by side, the summary below."""
     import rerun.blueprint as rrb
 
-    controls = _eye_controls(eye)
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(
-                rrb.Spatial3DView(origin="world", name="scene", eye_controls=controls),
-                rrb.Spatial2DView(origin="world/camera/image", name="image"),
-            ),
+            _scene_and_image(eye),
             rrb.TextDocumentView(origin="summary", name="summary"),
             row_shares=[4, 1],
         ),
