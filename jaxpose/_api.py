@@ -148,7 +148,7 @@ def solve(
 
 
 def solve_many(
-    camera: Float[Array, "3 4"],
+    camera: Float[Array, "3 4"] | Float[Array, "B 3 4"],
     model: Float[Array, "B n 3"],
     image: Float[Array, "B n 2"],
     mask: Bool[Array, "B n"] | None = None,
@@ -164,8 +164,9 @@ def solve_many(
     max_triplets: int | None = 2000,
     triplet_budget: int | None = None,
 ) -> Solution:
-    """`solve` for a batch of `B` problems of equal `n` seen by one camera: the same
-    answers as `jax.vmap(solve, in_axes=(None, 0, 0, 0))`, computed batch-first.
+    """`solve` for a batch of `B` problems of equal `n`: the same answers as
+    `jax.vmap(solve)`, computed batch-first. `camera` is `(3, 4)`, one camera for every
+    problem (`jax.vmap(solve, in_axes=(None, 0, 0, 0))`), or `(B, 3, 4)`, one per problem.
 
     The difference is the cost: under a plain `vmap`, every problem pays for the mixed
     algorithm's full Levenberg-Marquardt buffer (`vmap` turns its "only when needed" into
@@ -178,15 +179,15 @@ def solve_many(
     _check_budget(triplet_budget)
     _check_many(camera, model, image, mask)
     B = model.shape[0]
-    camera, model, image, finite = jax.vmap(_finite_inputs, in_axes=(None, 0, 0))(
+    shared = None if jnp.ndim(camera) == 2 else 0
+    camera, model, image, finite = jax.vmap(_finite_inputs, in_axes=(shared, 0, 0))(
         camera, model, image
     )
-    camera = camera[0]
     if mask is None:
         # (The barrier keeps XLA from constant-folding the all-true mask through the
         # triplet gathers, which costs seconds of compile time for nothing.)
         mask = jax.lax.optimization_barrier(jnp.ones(model.shape[:2], dtype=bool))
-    obs = jax.vmap(observations, in_axes=(None, 0, 0, 0))(camera, model, image, mask)
+    obs = jax.vmap(observations)(camera, model, image, mask)
     T = _triplet_count(model.shape[1], max_triplets, triplet_budget)
 
     def initial_of(o):
@@ -217,7 +218,8 @@ def solve_many(
 
 
 def _check_many(camera, model, image, mask) -> None:
-    """`check_problem` for a batch: `model (B, n, 3)`, `image (B, n, 2)`, `mask (B, n)`."""
+    """`check_problem` for a batch: `camera (3, 4)` or `(B, 3, 4)`, `model (B, n, 3)`,
+    `image (B, n, 2)`, `mask (B, n)`."""
     for name, x, tail in (("model", model, 3), ("image", image, 2)):
         shape = getattr(x, "shape", None)
         if shape is None or len(shape) != 3 or shape[-1] != tail:
@@ -229,11 +231,21 @@ def _check_many(camera, model, image, mask) -> None:
         )
     if mask is not None and (getattr(mask, "ndim", None) != 2 or mask.shape[0] != model.shape[0]):
         raise ValueError(f"mask must have shape (B, n), got {getattr(mask, 'shape', None)}")
+    if getattr(camera, "ndim", None) == 3 and camera.shape[0] != model.shape[0]:
+        raise ValueError(
+            f"camera must be (3, 4) or one per problem, (B, 3, 4) with B = {model.shape[0]}, "
+            f"got {camera.shape}"
+        )
 
     def item(x):
         return None if x is None else jax.ShapeDtypeStruct(x.shape[1:], x.dtype)
 
-    check_problem(camera, item(model), item(image), item(mask))
+    check_problem(
+        item(camera) if getattr(camera, "ndim", None) == 3 else camera,
+        item(model),
+        item(image),
+        item(mask),
+    )
 
 
 def _finite_inputs(camera, model, image):

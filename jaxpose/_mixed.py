@@ -61,7 +61,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from ._pose import Observations, Pose, transform
 from ._residuals import in_front, pixel_residuals, rms, rounding_level
@@ -295,42 +295,65 @@ def _ranked(need, priority, budget: int | None):
     return need & (rank < budget)
 
 
-def _where_needed(fn, need, priority, chunk: int, *args):
-    """Run `fn` (one element -> pytree) on every element where `need` holds, lowest
-    `priority` first, `chunk` elements at a time in a fixed-size buffer, and scatter the
-    results back (a `lax.while_loop` that stops when none is left: no pass at all when
-    nothing needs it). Rows where `need` is false hold zeros.
+class _Jobs(NamedTuple):
+    """A fixed-size list of jobs for `_run_jobs`: which to run (`need`), in what order
+    (`priority`, lowest first), their arguments and results (pytrees with a leading job
+    axis), and which have run (`done`)."""
 
-    Under `vmap` the loop runs for as long as the element that needs most passes."""
-    N = need.shape[0]
+    need: Bool[Array, " N"]
+    priority: Float[Array, " N"]
+    args: tuple
+    results: tuple
+    done: Bool[Array, " N"]
+
+
+def _run_jobs(fn, jobs: _Jobs, chunk: int, phases: int, advance, carry):
+    """Run `fn` (one job's arguments -> results) on every job that `need`s it, lowest
+    `priority` first, `chunk` jobs at a time in a fixed-size buffer, in `phases` phases.
+
+    When no job of the current phase is left, `advance(phase, jobs, carry) -> (jobs,
+    carry)` reads the results and sets the next phase's jobs (it runs once per phase, the
+    last time after the last phase, to read its results). One `lax.while_loop`, so `fn`
+    appears once in the compiled program however many phases use it; a phase with
+    nothing to do costs one trip. Under `vmap` the loop runs for as long as the element
+    that needs most passes.
+
+    Returns `(jobs, carry)`."""
+    N = jobs.need.shape[0]
     k = max(1, min(int(chunk), N))
-    big = jnp.finfo(priority.dtype).max
-    # Selection key: remaining elements by priority (non-finite ones last among them),
-    # all of them strictly before every other element, so that each pass takes only
-    # remaining ones while any is left and the loop always ends.
-    key = -jnp.clip(jnp.where(jnp.isnan(priority), big, priority), -big, big)
-    shapes = jax.eval_shape(lambda *a: jax.vmap(fn)(*a), *(jax.tree.map(lambda x: x[:k], args)))
-    results = jax.tree.map(lambda s: jnp.zeros((N, *s.shape[1:]), s.dtype), shapes)
 
-    def cond(state):
-        _, done = state
-        return jnp.any(need & ~done)
-
-    def body(state):
-        results, done = state
-        remaining = need & ~done
+    def work(state):
+        phase, jobs, carry = state
+        big = jnp.finfo(jobs.priority.dtype).max
+        remaining = jobs.need & ~jobs.done
+        # Selection key: remaining jobs by priority (non-finite ones last among them), all
+        # of them strictly before every other job, so that each pass takes only remaining
+        # ones while any is left and the loop always ends.
+        key = -jnp.clip(jnp.where(jnp.isnan(jobs.priority), big, jobs.priority), -big, big)
         _, slots = jax.lax.top_k(jnp.where(remaining, key, -jnp.inf), k)
         take = remaining[slots]
-        out = jax.vmap(fn)(*(jax.tree.map(lambda x: x[slots], args)))
+        out = jax.vmap(fn)(*jax.tree.map(lambda x: x[slots], jobs.args))
 
         def put(r, o):
             keep = take.reshape(-1, *([1] * (o.ndim - 1)))
             return r.at[slots].set(jnp.where(keep, o, r[slots]))
 
-        return jax.tree.map(put, results, out), done.at[slots].set(done[slots] | take)
+        results = jax.tree.map(put, jobs.results, out)
+        done = jobs.done.at[slots].set(jobs.done[slots] | take)
+        return phase, jobs._replace(results=results, done=done), carry
 
-    results, _ = jax.lax.while_loop(cond, body, (results, jnp.zeros(N, bool)))
-    return results
+    def next_phase(state):
+        phase, jobs, carry = state
+        jobs, carry = advance(phase, jobs, carry)
+        return phase + 1, jobs, carry
+
+    def body(state):
+        _, jobs, _ = state
+        return jax.lax.cond(jnp.any(jobs.need & ~jobs.done), work, next_phase, state)
+
+    state = (jnp.array(0, jnp.int32), jobs, carry)
+    _, jobs, carry = jax.lax.while_loop(lambda state: state[0] <= phases - 1, body, state)
+    return jobs, carry
 
 
 def _default_chunk(B: int, T: int) -> int:
@@ -414,17 +437,22 @@ def mixed_from_initial_batch(
     else:
         thr = jnp.full((B,), threshold, dtype)
 
-    def after_linear(problem, start: Pose, res, steps: int = max_steps):
-        """Steps 3-4 after a linear run `res` from `start` (LM with `steps` iterations at
-        most): (pose, error, status)."""
+    # Levenberg-Marquardt's static bound: the retries get `PATIENCE` times the budget.
+    retries = second_chance_budget > 0 or planar_partner
+    lm_bound = PATIENCE * max_steps if retries else max_steps
+
+    def job(problem, start: Pose, steps):
+        """Steps 2-4 from `start` for one problem, Levenberg-Marquardt with `steps`
+        iterations at most: (pose, error, status)."""
         o = jax.tree.map(lambda x: x[problem], obs)
         th = thr[problem]
+        res = run_linear(o, start)
         accepted = (res.status == Status.OK) & (res.error < th)
         better = (res.error < _errors(Pose(start.R[None], start.t[None]), o)[0]) & (
             res.status != Status.NOT_FINITE
         )
         lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
-        nl = nonlinear(o, lm_start, max_steps=steps)
+        nl = nonlinear(o, lm_start, max_steps=lm_bound, step_limit=steps)
         again = run_linear(o, nl.pose)
         lm_ok = nl.status == Status.OK
         # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
@@ -452,91 +480,114 @@ def mixed_from_initial_batch(
         error = jnp.concatenate([errors, error4[None]])[pick]
         return pose, error, status.astype(jnp.int32)
 
+    # Step 3 and the retries are jobs of one buffer loop (`_run_jobs`, so one
+    # Levenberg-Marquardt in the compiled program), in phases, since each phase's starts
+    # come from the one before: step 3 (a job per triplet: its best root), the second
+    # chance (four per triplet: its other roots, then its stalled pose), the planar
+    # partner (one per problem).
+    N0 = B * T
+    N1 = 4 * B * T if second_chance_budget > 0 else 0
+    N2 = B if planar_partner else 0
+    b = jnp.arange(B)
+    problem = jnp.concatenate([jnp.repeat(b, T), jnp.repeat(b, 4 * T)[:N1], b[:N2]])
+    steps = jnp.where(jnp.arange(N0 + N1 + N2) < N0, max_steps, PATIENCE * max_steps)
+
     def flat(x):
-        return x.reshape(B * T, *x.shape[2:])
+        return x.reshape(-1, *x.shape[2:])
+
+    def fill(x, n):
+        return jnp.concatenate([x, jnp.zeros((n, *x.shape[1:]), x.dtype)])
 
     accepted2 = lin_ok & (lin.error < thr[:, None])
     priority = jnp.minimum(lin.error, initial.error)
-    need = jax.vmap(_ranked, in_axes=(0, 0, None))(usable & ~accepted2, priority, nonlinear_budget)
-    problem = jnp.repeat(jnp.arange(B), T)
-    pose3, error3, status3 = _where_needed(
-        after_linear,
-        flat(need),
-        flat(priority),
-        k,
-        problem,
-        jax.tree.map(flat, initial.pose),
-        jax.tree.map(flat, lin),
+    need3 = jax.vmap(_ranked, in_axes=(0, 0, None))(usable & ~accepted2, priority, nonlinear_budget)
+    starts = jax.tree.map(lambda x: fill(flat(x), N1 + N2), initial.pose)
+    shapes = jax.eval_shape(job, problem[0], jax.tree.map(lambda x: x[0], starts), steps[0])
+    jobs = _Jobs(
+        need=fill(flat(need3), N1 + N2),
+        priority=fill(flat(priority), N1 + N2),
+        args=(problem, starts, steps),
+        results=jax.tree.map(lambda s: jnp.zeros((N0 + N1 + N2, *s.shape), s.dtype), shapes),
+        done=jnp.zeros(N0 + N1 + N2, bool),
     )
-    pose3, error3, status3 = jax.tree.map(
-        lambda x: x.reshape(B, T, *x.shape[1:]), (pose3, error3, status3)
-    )
-    status = jnp.select(
-        [~usable, accepted2, need, usable & ~accepted2],
-        [initial.status, Status.ACCEPTED_LINEAR, status3, Status.NOT_ATTEMPTED],
-        Status.OK,
-    ).astype(jnp.int32)
-    pose = jax.vmap(_where_pose)(need, pose3, lin.pose)
-    error = jnp.where(need, error3, lin.error)
 
-    # Second chance: a triplet whose best root led to a local minimum (rejected, or LM
-    # failed) starts over from each of its other roots, and one whose LM ran out of steps
-    # also carries on from where it stopped (at most `second_chance_budget` triplets per
-    # problem, lowest error first).
-    root = jnp.zeros((B, T), jnp.int32)
-
-    def from_start(problem, start: Pose):
-        # The retries are rare: LM gets `PATIENCE` times its budget (slow, linear
-        # convergence at a flat optimum is what stalls it).
-        o = jax.tree.map(lambda x: x[problem], obs)
-        return after_linear(problem, start, run_linear(o, start), PATIENCE * max_steps)
-
-    if second_chance_budget > 0:
-        failed = need & ~Status.is_success(status)
-        failed = jax.vmap(_ranked, in_axes=(0, 0, None))(failed, error, second_chance_budget)
-        stalled = failed & (status == Status.NONLINEAR_NOT_CONVERGED) & (error < big)
-        alt_need = jnp.concatenate(
-            [failed[:, :, None] & (initial.alt_error < big), stalled[:, :, None]], axis=2
-        )  # (B, T, 4): the three other roots, then the stalled pose
-        starts = Pose(
-            jnp.concatenate([initial.alt_pose.R, pose.R[:, :, None]], axis=2),
-            jnp.concatenate([initial.alt_pose.t, pose.t[:, :, None]], axis=2),
+    def set_jobs(jobs: _Jobs, lo: int, need, priority, start: Pose) -> _Jobs:
+        problem, starts, steps = jobs.args
+        hi = lo + need.shape[0]
+        starts = jax.tree.map(lambda a, x: a.at[lo:hi].set(x), starts, start)
+        return jobs._replace(
+            need=jobs.need.at[lo:hi].set(need),
+            priority=jobs.priority.at[lo:hi].set(priority),
+            args=(problem, starts, steps),
         )
-        start_error = jnp.concatenate([initial.alt_error, error[:, :, None]], axis=2)
-        pose_b, error_b, status_b = _where_needed(
-            from_start,
-            alt_need.reshape(-1),
-            start_error.reshape(-1),
-            k,
-            jnp.repeat(jnp.arange(B), 4 * T),
-            jax.tree.map(lambda x: x.reshape(B * T * 4, *x.shape[3:]), starts),
+
+    def after_step3(jobs: _Jobs, carry):
+        """Step 3's outcome; the second chance's jobs: a triplet whose best root led to a
+        local minimum (rejected, or LM failed) starts over from each of its other roots,
+        and one whose LM ran out of steps also carries on from where it stopped (at most
+        `second_chance_budget` triplets per problem, lowest error first)."""
+        pose3, error3, status3 = jax.tree.map(
+            lambda x: x[:N0].reshape(B, T, *x.shape[1:]), jobs.results
         )
-        won = alt_need & Status.is_success(status_b).reshape(B, T, 4)
-        error_b = jnp.where(won, error_b.reshape(B, T, 4), big)
-        pick = jnp.argmin(error_b, axis=2)
-        won_any = jnp.any(won, axis=2)
-        rows = (jnp.arange(B * T) * 4 + pick.reshape(-1)).reshape(B, T)
-        status = jnp.where(won_any, status_b[rows], status)
-        pose = jax.vmap(_where_pose)(won_any, jax.tree.map(lambda x: x[rows], pose_b), pose)
-        error = jnp.where(won_any, jnp.take_along_axis(error_b, pick[..., None], 2)[..., 0], error)
-        root = jnp.where(won_any & (pick < 3), 1 + pick, root)
-
-    # Planar partner: for a coplanar model, the answer (best triplet) may sit in the wrong
-    # one of the two minima of the planar ambiguity; its partner pose starts steps 2-4
-    # once (one start per problem, only for coplanar models).
-    if planar_partner:
-        best, _ = jax.vmap(best_triplet)(jnp.where(usable, error, big), status)  # (B,)
-        b = jnp.arange(B)
-        partner, flat = jax.vmap(_planar_partner)(obs, jax.tree.map(lambda x: x[b, best], pose))
-        p_need = flat & usable[b, best]
-
-        def partner_pass(state):
-            pose, error, status, root = state
-            pose_p, error_p, status_p = _where_needed(
-                from_start, p_need, error[b, best], k, b, partner
+        status = jnp.select(
+            [~usable, accepted2, need3, usable & ~accepted2],
+            [initial.status, Status.ACCEPTED_LINEAR, status3, Status.NOT_ATTEMPTED],
+            Status.OK,
+        ).astype(jnp.int32)
+        pose = jax.vmap(_where_pose)(need3, pose3, lin.pose)
+        error = jnp.where(need3, error3, lin.error)
+        if N1:
+            failed = need3 & ~Status.is_success(status)
+            failed = jax.vmap(_ranked, in_axes=(0, 0, None))(failed, error, second_chance_budget)
+            stalled = failed & (status == Status.NONLINEAR_NOT_CONVERGED) & (error < big)
+            alt_need = jnp.concatenate(
+                [failed[:, :, None] & (initial.alt_error < big), stalled[:, :, None]], axis=2
+            )  # (B, T, 4): the three other roots, then the stalled pose
+            start = Pose(
+                jnp.concatenate([initial.alt_pose.R, pose.R[:, :, None]], axis=2),
+                jnp.concatenate([initial.alt_pose.t, pose.t[:, :, None]], axis=2),
             )
+            start_error = jnp.concatenate([initial.alt_error, error[:, :, None]], axis=2)
+            start = jax.tree.map(lambda x: x.reshape(N1, *x.shape[3:]), start)
+            jobs = set_jobs(jobs, N0, alt_need.reshape(-1), start_error.reshape(-1), start)
+        return jobs, (pose, error, status, carry[3], carry[4])
+
+    def after_second_chance(jobs: _Jobs, carry):
+        """The second chance's outcome; the planar partner's job: for a coplanar model,
+        the answer (best triplet) may sit in the wrong one of the two minima of the
+        planar ambiguity; its partner pose starts steps 2-4 once."""
+        pose, error, status, root, best = carry
+        if N1:
+            alt_need = jobs.need[N0 : N0 + N1].reshape(B, T, 4)
+            pose_b, error_b, status_b = jax.tree.map(lambda x: x[N0 : N0 + N1], jobs.results)
+            won = alt_need & Status.is_success(status_b).reshape(B, T, 4)
+            error_b = jnp.where(won, error_b.reshape(B, T, 4), big)
+            pick = jnp.argmin(error_b, axis=2)
+            won_any = jnp.any(won, axis=2)
+            rows = (jnp.arange(B * T) * 4 + pick.reshape(-1)).reshape(B, T)
+            status = jnp.where(won_any, status_b[rows], status)
+            pose = jax.vmap(_where_pose)(won_any, jax.tree.map(lambda x: x[rows], pose_b), pose)
+            chosen = jnp.take_along_axis(error_b, pick[..., None], 2)[..., 0]
+            error = jnp.where(won_any, chosen, error)
+            root = jnp.where(won_any & (pick < 3), 1 + pick, root).astype(jnp.int32)
+        if N2:
+            best, _ = jax.vmap(best_triplet)(jnp.where(usable, error, big), status)  # (B,)
+            best = best.astype(jnp.int32)
+            partner, coplanar = jax.vmap(_planar_partner)(
+                obs, jax.tree.map(lambda x: x[b, best], pose)
+            )
+            p_need = coplanar & usable[b, best]
+            jobs = set_jobs(jobs, N0 + N1, p_need, error[b, best], partner)
+        return jobs, (pose, error, status, root, best)
+
+    def after_partner(jobs: _Jobs, carry):
+        """The planar partner's outcome: it replaces the answer when accepted with a lower
+        error (or when the answer was not accepted)."""
+        pose, error, status, root, best = carry
+        if N2:
+            pose_p, error_p, status_p = jax.tree.map(lambda x: x[N0 + N1 :], jobs.results)
             won = (
-                p_need
+                jobs.need[N0 + N1 :]
                 & Status.is_success(status_p)
                 & (~Status.is_success(status[b, best]) | (error_p < error[b, best]))
             )
@@ -547,12 +598,19 @@ def mixed_from_initial_batch(
                 pose.t.at[b, best].set(jnp.where(won[:, None], pose_p.t, pose.t[b, best])),
             )
             root = root.at[b, best].set(jnp.where(won, PARTNER_ROOT, root[b, best]))
-            return pose, error, status, root
+        return jobs, (pose, error, status, root, best)
 
-        # (Skipped outright, not only by the buffer loop, when no problem needs it.)
-        pose, error, status, root = jax.lax.cond(
-            jnp.any(p_need), partner_pass, lambda state: state, (pose, error, status, root)
-        )
+    def advance(phase, jobs, carry):
+        return jax.lax.switch(phase, [after_step3, after_second_chance, after_partner], jobs, carry)
+
+    carry = (
+        lin.pose,
+        lin.error,
+        lin.status.astype(jnp.int32),
+        jnp.zeros((B, T), jnp.int32),
+        jnp.zeros(B, jnp.int32),
+    )
+    _, (pose, error, status, root, _) = _run_jobs(job, jobs, k, 3, advance, carry)
 
     # A triplet that was not accepted reports the better of its last pose and its
     # three-point start, never a pose with points behind the camera.

@@ -75,3 +75,13 @@ def test_solve_many_equals_vmapped_solve():
         assert bool(many.accepted[b])
         err = jp.rotation_distance(many.pose.R[b], jnp.asarray(scenes[b].R))
         assert float(err) < 0.05
+
+
+@pytest.mark.parametrize(
+    ("camera_shape", "match"),
+    [((3, 3), "camera must be a 3x4"), ((5, 3, 4), "one per problem"), ((4, 3, 3), "3x4")],
+)
+def test_solve_many_checks_the_camera(camera_shape, match):
+    M, I = jnp.zeros((4, 6, 3)), jnp.zeros((4, 6, 2))
+    with pytest.raises(ValueError, match=match):
+        jp.solve_many(jnp.ones(camera_shape), M, I)

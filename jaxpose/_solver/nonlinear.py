@@ -21,6 +21,7 @@ at the optimum), not from unrolling the iterations.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
@@ -58,9 +59,43 @@ class _TrustRegion(optx.ClassicalTrustRegion):
         return type(state)(step_size=state.step_size.astype(jax.tree.leaves(y)[0].dtype))
 
 
+class _StepLimit(optx.AbstractLeastSquaresSolver):
+    """A least-squares solver that stops after `options["step_limit"]` steps, a traced
+    integer (optimistix's `max_steps` is static: the loop's bound), reporting
+    `nonlinear_max_steps_reached` as optimistix does at its own bound. Lets one compiled
+    solver serve calls with different budgets (the mixed algorithm's retries)."""
+
+    solver: optx.AbstractLeastSquaresSolver
+    rtol: float
+    atol: float
+    norm: Callable = eqx.field(static=True)
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        inner = self.solver.init(fn, y, args, options, f_struct, aux_struct, tags)
+        return inner, jnp.array(0, jnp.int32)
+
+    def step(self, fn, y, args, options, state, tags):
+        inner, count = state
+        y, inner, aux = self.solver.step(fn, y, args, options, inner, tags)
+        return y, (inner, count + 1), aux
+
+    def terminate(self, fn, y, args, options, state, tags):
+        inner, count = state
+        stop, result = self.solver.terminate(fn, y, args, options, inner, tags)
+        limit = (options or {}).get("step_limit")
+        if limit is None:  # optimistix's own `max_steps` alone
+            return stop, result
+        out = ~stop & (count >= limit)
+        return stop | out, optx.RESULTS.where(out, optx.RESULTS.nonlinear_max_steps_reached, result)
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return self.solver.postprocess(fn, y, aux, args, options, state[0], tags, result)
+
+
 def _solver(rtol, atol):
     lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=NormalCholesky())
-    return eqx.tree_at(lambda s: s.search, lm, _TrustRegion())
+    lm = eqx.tree_at(lambda s: s.search, lm, _TrustRegion())
+    return _StepLimit(lm, rtol, atol, lm.norm)
 
 
 def _chart(y, base_world, centre, length):
@@ -82,6 +117,7 @@ def nonlinear(
     atol: float | None = None,
     gtol: float | None = None,
     max_steps: int = 50,
+    step_limit: int | Int[Array, ""] | None = None,
 ) -> NonlinearResult:
     """Levenberg-Marquardt (optimistix) on Eq. 8 from `init`, for one problem.
 
@@ -95,6 +131,8 @@ def nonlinear(
       error is at rounding level (`jaxpose._residuals.rounding_level`: exact data).
     - `max_steps`: iteration budget. Running out of it counts as converged only if the
       pose is stationary (see `gtol`).
+    - `step_limit`: a budget below `max_steps` that may be traced (one compiled solver
+      for several budgets); `None`: `max_steps`.
 
     **Returns:** a `NonlinearResult` with the pose `R = R(q) R0`, `t = R(q)(t0 - c0) + c0 + L d`.
     """
@@ -113,8 +151,15 @@ def nonlinear(
     length = jnp.where(length > 0, length, 1)
     args = (obs, base, centre, length)
 
+    limit = max_steps if step_limit is None else jnp.minimum(step_limit, max_steps)
     sol = optx.least_squares(
-        _residual, _solver(rtol, atol), jnp.zeros(6, dtype), args, max_steps=max_steps, throw=False
+        _residual,
+        _solver(rtol, atol),
+        jnp.zeros(6, dtype),
+        args,
+        options={"step_limit": jnp.asarray(limit, jnp.int32)},
+        max_steps=max_steps,
+        throw=False,
     )
     y = sol.value
     Rq = quaternion_vector_to_matrix(y[:3])
