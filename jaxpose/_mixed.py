@@ -423,12 +423,21 @@ def mixed_from_initial_batch(
     def run_linear(o, pose):
         return linear(o, pose, iterations=linear_iterations)
 
-    # Step 2 for every triplet of every problem (problems in cache-sized passes).
-    lin = jax.lax.map(
-        lambda a: jax.vmap(run_linear, in_axes=(None, 0))(*a),
-        (obs, initial.pose),
-        batch_size=max(1, _pass_size(B * T) // T),
-    )
+    # Step 2 for every triplet of every problem, in cache-sized passes: whole problems
+    # at a time, or, for a problem with more triplets than a pass, its triplets in passes.
+    if T <= _pass_size(T):
+        lin = jax.lax.map(
+            lambda a: jax.vmap(run_linear, in_axes=(None, 0))(*a),
+            (obs, initial.pose),
+            batch_size=max(1, _pass_size(B * T) // T),
+        )
+    else:
+
+        def one_problem(a):
+            o, poses = a
+            return jax.lax.map(lambda p: run_linear(o, p), poses, batch_size=_pass_size(T))
+
+        lin = jax.lax.map(one_problem, (obs, initial.pose))
     lin_ok = usable & (lin.status == Status.OK)
     if threshold is None:
         best = jnp.min(jnp.where(lin_ok, lin.error, big), axis=1)
