@@ -97,6 +97,14 @@ def print_speed(res: dict, console) -> None:
         f">= {T['paper_vs_poselib']:g}x: {_status(p['vs_poselib'], T['paper_vs_poselib'], True)}",
     )
     console.print(t)
+    ph = res.get("paper_phases")
+    if ph:
+        console.print(
+            f"what it is made of (ms, each compiled alone): three-point roots "
+            f"{ph['three_point_ms']:.2f}; step 1 (roots + Eq. 8 errors) {ph['step1_ms']:.2f}; "
+            f"step 2 (linear from all {ph['triplets']}) {ph['step2_linear_ms']:.2f}; mixed "
+            f"{ph['mixed_ms']:.2f}; solve (mixed + polish) {ph['solve_ms']:.2f}"
+        )
     console.print(
         f"compile (cold, first call): {p['compile_s']:.1f} s (target <= {T['compile_s']:g} s: "
         f"{_status(p['compile_s'], T['compile_s'], False)})"

@@ -130,6 +130,36 @@ def paper(repeat: int) -> dict:
     }
 
 
+def paper_phases(repeat: int) -> dict:
+    """What the paper protocol's time is made of (each phase compiled alone, best of
+    `repeat`, ms): three-point roots alone; step 1 (roots and their Eq. 8 errors over all
+    matches); step 2 (the linear method from every triplet's pose); the mixed algorithm
+    (steps 1-4 and the retries); `solve` (the mixed algorithm, the answer's polish and
+    its derivative)."""
+    from jaxpose._mixed import initial_poses, mixed
+
+    bench = jp.default_bench(seed=0)
+    C, M, I = (jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points))
+    obs = jp.observations(C, M, I)
+    trip = jnp.asarray(jp.triplet_indices(M.shape[0]))
+    start = jax.jit(initial_poses)(obs).pose
+
+    def roots(o):
+        return jax.vmap(lambda ijk: jp.three_point(o.camera, o.model[ijk], o.image[ijk]))(trip)
+
+    phases = {
+        "three_point_ms": (roots, (obs,)),
+        "step1_ms": (initial_poses, (obs,)),
+        "step2_linear_ms": (lambda o, p: jax.vmap(lambda q: jp.linear(o, q))(p), (obs, start)),
+        "mixed_ms": (mixed, (obs,)),
+        "solve_ms": (jp.solve, (C, M, I)),
+    }
+    out = {"triplets": int(trip.shape[0])}
+    for name, (fn, args) in phases.items():
+        out[name] = 1e3 * _compile_and_time(jax.jit(fn), args, repeat)[1]
+    return out
+
+
 def latency(repeat: int) -> dict:
     bench = jp.default_bench(seed=0)
     obj, img, K = bench.model_points, bench.image_points, bench.K
@@ -239,6 +269,7 @@ def run(quick: bool = False) -> dict:
     sizes = [1, 10, 100, 1000] if quick else [1, 10, 100, 1000, 10000]
     return {
         "paper": paper(repeat),
+        "paper_phases": paper_phases(repeat),
         "latency": latency(repeat),
         "batch": batch(sizes, 3 if quick else 5),
         "p3p": p3p(20000 if quick else 100000, 3 if quick else 5),
