@@ -52,9 +52,13 @@ def _best(fn, repeat: int) -> float:
 
 
 def _compile_and_time(fn, args, repeat: int) -> tuple[float, float]:
+    """(first call, compile included; best of `repeat` compiled calls after three
+    warm-up calls: the first few calls after a compile run up to 1.5x slower)."""
     t0 = time.perf_counter()
     jax.block_until_ready(fn(*args))
     first = time.perf_counter() - t0
+    for _ in range(3):
+        jax.block_until_ready(fn(*args))
     return first, _best(lambda: jax.block_until_ready(fn(*args)), repeat)
 
 
@@ -265,7 +269,7 @@ def linalg(count: int, repeat: int) -> dict:
 
 def run(quick: bool = False) -> dict:
     """All sections; `quick` uses fewer repeats and smaller batches."""
-    repeat = 5 if quick else 20
+    repeat = 20 if quick else 50
     sizes = [1, 10, 100, 1000] if quick else [1, 10, 100, 1000, 10000]
     return {
         "paper": paper(repeat),
