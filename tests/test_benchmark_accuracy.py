@@ -1,26 +1,18 @@
 """The accuracy benchmark (`benchmarks/accuracy.py`) on a tiny grid: its JSON, its tables,
 and jaxpose's mixed method at the ML optimum that the benchmark computes with OpenCV."""
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-
-PATH = Path(__file__).resolve().parent.parent / "benchmarks" / "accuracy.py"
+from helpers import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def accuracy():
-    spec = importlib.util.spec_from_file_location("accuracy_benchmark", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    with benchmark_module("accuracy") as module:
+        yield module
 
 
 def test_rotation_and_translation_errors(accuracy):

@@ -2,27 +2,21 @@
 answers, and a tiny end-to-end run (one cell, two trials, the quickest method to compile,
 no P3P section): its JSON keys and finite numbers."""
 
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import benchmark_module
 
-PATH = Path(__file__).resolve().parent.parent / "benchmarks" / "float32.py"
 STATS = {"median", "p99", "max"}
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("float32_benchmark", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    with benchmark_module("float32") as module:
+        yield module
 
 
 def _finite(x) -> bool:

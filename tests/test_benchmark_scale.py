@@ -1,25 +1,17 @@
 """The scaling benchmark (`benchmarks/scale.py`) on a tiny configuration: its JSON, its
 plot and the sanity of every figure (positive, finite), without worker processes."""
 
-import importlib.util
 import json
 import math
-import sys
-from pathlib import Path
 
 import pytest
-
-PATH = Path(__file__).resolve().parent.parent / "benchmarks" / "scale.py"
+from helpers import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def scale():
-    spec = importlib.util.spec_from_file_location("scale_benchmark", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    with benchmark_module("scale") as module:
+        yield module
 
 
 def _positive(x) -> bool:

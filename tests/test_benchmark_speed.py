@@ -3,34 +3,17 @@ sections run for real on tiny inputs, and the table prints every section with it
 target and verdict (the expensive sections, which compile the whole solver, are given
 stand-in figures here: `make bench` runs them)."""
 
-import importlib.util
 import io
 import math
-import sys
-from pathlib import Path
 
 import pytest
-
-HERE = Path(__file__).resolve().parent.parent / "benchmarks"
-
-
-def _load(name):
-    spec = importlib.util.spec_from_file_location(f"{name}_benchmark", HERE / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+from helpers import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def modules():
-    sys.path.insert(0, str(HERE))
-    try:
-        yield _load("speed"), _load("run")
-    finally:
-        sys.path.remove(str(HERE))
-        for name in ("speed_benchmark", "run_benchmark"):
-            sys.modules.pop(name, None)
+    with benchmark_module("speed") as speed, benchmark_module("run") as run:
+        yield speed, run
 
 
 def test_cheap_sections_and_the_table(modules):
