@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose._bench import random_rotations
+from jaxpose.apps._bench import random_rotations
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
 WIDTH, HEIGHT = 640, 480

@@ -258,8 +258,8 @@ def batch_worker(spec: dict) -> dict:
     import numpy as np
 
     import jaxpose as jp
-    from jaxpose._api import _batched_opencv
-    from jaxpose._batch import _compiled
+    from jaxpose.api._batch import _compiled
+    from jaxpose.api._solve import _batched_opencv
 
     B, chunk_size, budget = spec["B"], spec["chunk_size"], spec.get("triplet_budget", BUDGET)
     method, n = spec.get("method", "mixed"), spec.get("n", 16)

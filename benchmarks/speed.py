@@ -140,7 +140,7 @@ def paper_phases(repeat: int) -> dict:
     matches); step 2 (the linear method from every triplet's pose); the mixed algorithm
     (steps 1-4 and the retries); `solve` (the mixed algorithm, the answer's polish and
     its derivative)."""
-    from jaxpose._mixed import initial_poses, mixed
+    from jaxpose.strategy._mixed import initial_poses, mixed
 
     bench = jp.default_bench(seed=0)
     C, M, I = (jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points))
@@ -234,7 +234,7 @@ def batch(sizes: list[int], repeat: int, budget: int = 8, seed: int = 1) -> list
 
 def p3p(count: int, repeat: int, seed: int = 2) -> dict:
     rng = np.random.default_rng(seed)
-    R = jp._bench.random_rotations(rng, count)
+    R = jp.apps._bench.random_rotations(rng, count)
     X = rng.uniform(-2, 2, size=(count, 3, 3))
     t = np.column_stack([rng.uniform(-1, 1, (count, 2)), rng.uniform(4, 8, count)])
     P = np.einsum("bij,bkj->bki", R, X) + t[:, None, :]
@@ -249,7 +249,7 @@ def p3p(count: int, repeat: int, seed: int = 2) -> dict:
 
 
 def linalg(count: int, repeat: int) -> dict:
-    from jaxpose._linalg import cholesky_solve
+    from jaxpose.solvers._linalg import cholesky_solve
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(count, 6, 6))

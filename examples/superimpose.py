@@ -24,9 +24,9 @@ import jax
 import numpy as np
 
 import jaxpose as jp
-from jaxpose._models import chessboard, model_bench
-from jaxpose._overlay import overlay, render
-from jaxpose._recognition import Hypothesis, verify_hypotheses
+from jaxpose.apps._models import chessboard, model_bench
+from jaxpose.apps._recognition import Hypothesis, verify_hypotheses
+from jaxpose.viz._overlay import overlay, render
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "chessboard"

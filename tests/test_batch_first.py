@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose._linalg import cholesky_solve
+from jaxpose.solvers._linalg import cholesky_solve
 
 
 @settings(max_examples=40, deadline=None)

@@ -1,4 +1,4 @@
-"""Tests of jaxpose._calibration: DLT + Levenberg-Marquardt camera calibration, the robot's
+"""Tests of jaxpose.apps._calibration: DLT + Levenberg-Marquardt camera calibration, the robot's
 LED procedure, degenerate layouts, and OpenCV on the same pairs."""
 
 import cv2
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 
 import jaxpose as jp
-from jaxpose._bench import random_rotation
-from jaxpose._calibration import (
+from jaxpose.apps._bench import random_rotation
+from jaxpose.apps._calibration import (
     _calibrate_jit,
     calibrate,
     calibrate_with_robot,
@@ -19,8 +19,8 @@ from jaxpose._calibration import (
     led_joint_grid,
     simulate_led_pairs,
 )
-from jaxpose._robot import default_robot, forward_kinematics
-from jaxpose._status import Status
+from jaxpose.apps._robot import default_robot, forward_kinematics
+from jaxpose.solvers._status import Status
 
 BENCH = jp.default_bench()
 ROBOT = default_robot()

@@ -1,4 +1,4 @@
-"""Tests of jaxpose._camera: projection, decomposition, visual rays, back-projection."""
+"""Tests of jaxpose.geometry._camera: projection, decomposition, visual rays, back-projection."""
 
 import cv2
 import hypothesis.strategies as st
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import given
 
-from jaxpose import _camera
-from jaxpose._camera import camera_matrix, undistort_pixels
+from jaxpose.geometry import _camera
+from jaxpose.geometry._camera import camera_matrix, undistort_pixels
 
 N = 8  # points per problem, shared by all tests so that one compilation serves them all
 

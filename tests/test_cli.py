@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose._cli import build_parser, main
-from jaxpose._io import bench_problem, read_problem
+from jaxpose.cli._main import build_parser, main
+from jaxpose.cli._problem import bench_problem, read_problem
 
 DATA = Path(__file__).parent / "data" / "chessboard"
 

@@ -8,9 +8,9 @@ import pytest
 from helpers import verify_recording
 
 import jaxpose as jp
-import jaxpose._robot as robot_module
-from jaxpose._cli import main
-from jaxpose._robot import default_robot, forward_kinematics
+import jaxpose.apps._robot as robot_module
+from jaxpose.apps._robot import default_robot, forward_kinematics
+from jaxpose.cli._main import main
 
 BENCH = jp.default_bench()
 FLOAT = r"(-?\d+\.\d+)"

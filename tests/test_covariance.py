@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose._covariance import _symmetric_pinv
+from jaxpose.strategy._covariance import _symmetric_pinv
 
 covariance = jax.jit(lambda C, M, I, pose, sigma: jp.pose_covariance(C, M, I, pose, sigma=sigma))
 estimate = jax.jit(lambda C, M, I, pose, mask: jp.pose_covariance(C, M, I, pose, mask))

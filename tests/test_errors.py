@@ -1,4 +1,4 @@
-"""Tests of jaxpose._errors: pixel residuals, Eq. 8 RMS, and the paper's pose error."""
+"""Tests of jaxpose.geometry._errors: pixel residuals, Eq. 8 RMS, and the paper's pose error."""
 
 import cv2
 import hypothesis.strategies as st
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import given
 
-from jaxpose import _errors
-from jaxpose._camera import camera_matrix
+from jaxpose.geometry import _errors
+from jaxpose.geometry._camera import camera_matrix
 
 
 def _all_errors(C, R, t, model, image, mask):

@@ -31,8 +31,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose._bench import random_rotations
-from jaxpose._validate import check_problem
+from jaxpose.apps._bench import random_rotations
+from jaxpose.geometry._validate import check_problem
 
 ROT_BATCH = 2**14  # per rotation group and dtype
 CAMERA_BATCH = 2**14  # per dtype
@@ -833,7 +833,7 @@ def _solve_terminates_on_non_finite() -> bool:
         import jax, jax.numpy as jnp
         jax.config.update("jax_enable_x64", True)
         try:
-            from jaxpose._mixed import _Jobs, _run_jobs
+            from jaxpose.strategy._mixed import _Jobs, _run_jobs
         except ImportError:
             raise SystemExit(0)
         need = jnp.array([False, False, True])

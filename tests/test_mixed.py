@@ -6,7 +6,7 @@ import pytest
 from helpers import opencv_optimum, rms_px
 
 import jaxpose as jp
-from jaxpose._experiment import run_experiment
+from jaxpose.apps._experiment import run_experiment
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +126,7 @@ def test_collinear_problem_is_reported_not_solved():
 
 
 def test_reproduce_command(tmp_path, capsys, experiments):
-    from jaxpose._cli import main
+    from jaxpose.cli._main import main
 
     assert main(["reproduce", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -141,7 +141,7 @@ def test_reproduce_command(tmp_path, capsys, experiments):
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
-    from jaxpose._cli import main
+    from jaxpose.cli._main import main
 
     assert main(["reproduce", "--noise", "-1", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose._mixed import _planar_partner
+from jaxpose.strategy._mixed import _planar_partner
 
 DATA = Path(__file__).parent / "data" / "planar_mixed_reproducers.json"
 ABS_TOL = 1e-6  # px: at the optimum (the benchmark's criterion)

@@ -1,4 +1,4 @@
-"""Tests of jaxpose._pointing: click -> visual ray -> nearest face -> 3D point (+ covariance)."""
+"""Tests of jaxpose.apps._pointing: click -> ray -> nearest face -> 3D point (+ covariance)."""
 
 import functools
 
@@ -12,10 +12,10 @@ from helpers import central_difference_jacobian, opencv_optimum
 from hypothesis import given, settings
 
 import jaxpose as jp
-from jaxpose._bench import random_rotation
-from jaxpose._pointing import Faces, face_normals, intersect_ray, pick, polyhedron_faces
-from jaxpose._rotation import rotvec_to_matrix
-from jaxpose._status import Status
+from jaxpose.apps._bench import random_rotation
+from jaxpose.apps._pointing import Faces, face_normals, intersect_ray, pick, polyhedron_faces
+from jaxpose.geometry._rotation import rotvec_to_matrix
+from jaxpose.solvers._status import Status
 
 BENCH = jp.default_bench()
 FACES = polyhedron_faces(BENCH.model)

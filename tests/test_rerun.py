@@ -13,8 +13,8 @@ from helpers import verify_recording
 from rerun.chunk import RrdReader
 
 import jaxpose as jp
-from jaxpose._experiment import METHOD_NAMES, ExperimentResult
-from jaxpose._status import Status
+from jaxpose.apps._experiment import METHOD_NAMES, ExperimentResult
+from jaxpose.solvers._status import Status
 
 
 def _rows(path):

@@ -1,4 +1,4 @@
-"""Tests of jaxpose._robot: forward and inverse kinematics of the paper's 4-DOF robot."""
+"""Tests of jaxpose.apps._robot: forward and inverse kinematics of the paper's 4-DOF robot."""
 
 import math
 
@@ -11,14 +11,14 @@ import pytest
 from hypothesis import given, settings
 
 import jaxpose as jp
-from jaxpose._robot import (
+from jaxpose.apps._robot import (
     Robot,
     default_robot,
     forward_kinematics,
     inverse_kinematics,
     joint_command,
 )
-from jaxpose._status import Status
+from jaxpose.solvers._status import Status
 
 ROBOT = default_robot()
 DEG = math.pi / 180

@@ -1,4 +1,4 @@
-"""Tests of jaxpose._rotation: the four parameterisations, their singular points, gradients.
+"""Tests of jaxpose.geometry._rotation: the four parameterisations, singular points, gradients.
 
 Tolerances: float64 round trips to `1e-12` (absolute, radians or matrix entries), except
 the 3-parameter quaternion near a half turn (`1e-7`, a limit of that parameterisation);
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 
-from jaxpose._rotation import (
+from jaxpose.geometry._rotation import (
     compose,
     hat,
     matrix_to_quaternion,

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose._batch import _argument_order, _pad_rows
+from jaxpose.api._batch import _argument_order, _pad_rows
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TOL = 1e-12

@@ -14,9 +14,9 @@ import pytest
 from hypothesis import assume, example, given
 from hypothesis import strategies as st
 
-from jaxpose._bench import random_rotations
-from jaxpose._solver.p3p import ThreePointResult, p3p, three_point
-from jaxpose._status import Status
+from jaxpose.apps._bench import random_rotations
+from jaxpose.solvers._p3p import ThreePointResult, p3p, three_point
+from jaxpose.solvers._status import Status
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
 BATCH = 2048  # p3p batches

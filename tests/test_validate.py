@@ -1,9 +1,15 @@
-"""Tests of jaxpose._validate: the numpy boundary raises ValueError naming the argument."""
+"""Tests of jaxpose.geometry._validate: the numpy boundary raises ValueError naming the argument."""
 
 import numpy as np
 import pytest
 
-from jaxpose._validate import as_camera, as_dist_coeffs, as_intrinsics, as_matching, as_points
+from jaxpose.geometry._validate import (
+    as_camera,
+    as_dist_coeffs,
+    as_intrinsics,
+    as_matching,
+    as_points,
+)
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 780.0, 240.0], [0.0, 0.0, 1.0]])
 C = np.hstack([K, np.array([[1.0], [2.0], [3.0]])])

@@ -30,11 +30,11 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
-from .._linalg import NormalCholesky
-from .._pose import Observations, Pose, transform
-from .._residuals import in_front, pixel_residuals, rms, rounding_level
-from .._rotation import quaternion_vector_to_matrix
-from .._status import Status
+from ..geometry._pose import Observations, Pose, transform
+from ..geometry._rotation import quaternion_vector_to_matrix
+from ._linalg import NormalCholesky
+from ._residuals import in_front, pixel_residuals, rms, rounding_level
+from ._status import Status
 
 __all__ = ["NonlinearResult", "nonlinear"]
 

@@ -36,12 +36,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._api import solve
+from ..api._solve import solve
+from ..geometry._pose import Pose, observations, transform
+from ..geometry._validate import as_camera, as_points
+from ..solvers._residuals import pixel_residuals
+from ..solvers._status import Status
 from ._bench import Polyhedron
-from ._pose import Pose, observations, transform
-from ._residuals import pixel_residuals
-from ._status import Status
-from ._validate import as_camera, as_points
 
 __all__ = [
     "Hypothesis",

@@ -11,10 +11,23 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._camera import camera_matrix, undistort_pixels
-from ._covariance import _chart_at, _chart_pose, _chart_residuals, _symmetric_pinv
-from ._errors import pose_error
-from ._mixed import (
+from ..geometry._camera import camera_matrix, undistort_pixels
+from ..geometry._errors import pose_error
+from ..geometry._pose import Observations, Pose, observations, transform
+from ..geometry._rotation import matrix_to_rotvec
+from ..geometry._validate import (
+    as_dist_coeffs,
+    as_intrinsics,
+    as_matching,
+    as_points,
+    check_problem,
+)
+from ..solvers._linear import linear
+from ..solvers._nonlinear import nonlinear
+from ..solvers._residuals import in_front, pixel_residuals, rms, rounding_level
+from ..solvers._status import Status
+from ..strategy._covariance import _chart_at, _chart_pose, _chart_residuals, _symmetric_pinv
+from ..strategy._mixed import (
     CHUNK,
     best_triplet,
     initial_poses,
@@ -23,13 +36,6 @@ from ._mixed import (
     spread_triplets,
     triplet_indices,
 )
-from ._pose import Observations, Pose, observations, transform
-from ._residuals import in_front, pixel_residuals, rms, rounding_level
-from ._rotation import matrix_to_rotvec
-from ._solver.linear import linear
-from ._solver.nonlinear import nonlinear
-from ._status import Status
-from ._validate import as_dist_coeffs, as_intrinsics, as_matching, as_points, check_problem
 
 __all__ = ["METHODS", "Solution", "solve", "solve_many", "solve_pnp", "solve_pnp_batch"]
 

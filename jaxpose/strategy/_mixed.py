@@ -63,13 +63,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._pose import Observations, Pose, transform
-from ._residuals import in_front, pixel_residuals, rms, rounding_level
-from ._rotation import rotvec_to_matrix
-from ._solver.linear import linear
-from ._solver.nonlinear import nonlinear
-from ._solver.p3p import three_point
-from ._status import Status
+from ..geometry._pose import Observations, Pose, transform
+from ..geometry._rotation import rotvec_to_matrix
+from ..solvers._linear import linear
+from ..solvers._nonlinear import nonlinear
+from ..solvers._p3p import three_point
+from ..solvers._residuals import in_front, pixel_residuals, rms, rounding_level
+from ..solvers._status import Status
 
 __all__ = [
     "Initial",

@@ -38,19 +38,19 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._status import Status
+from ..solvers._status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from ._api import Solution
-    from ._bench import Bench, Polyhedron
-    from ._experiment import ExperimentResult
-    from ._mixed import Initial, MixedResult
-    from ._pointing import Hit
-    from ._pose import Pose
-    from ._robot import Robot
+    from ..api._solve import Solution
+    from ..apps._bench import Bench, Polyhedron
+    from ..apps._experiment import ExperimentResult
+    from ..apps._pointing import Hit
+    from ..apps._robot import Robot
+    from ..geometry._pose import Pose
+    from ..strategy._mixed import Initial, MixedResult
 
 __all__ = [
     "STATUS_COLORS",
@@ -161,7 +161,7 @@ def _camera_parts(camera, K=None, R_wc=None, t_wc=None):
     if K is not None and R_wc is not None and t_wc is not None:
         K, R_wc, t_wc = _np(K), _np(R_wc), _np(t_wc).reshape(3)
         return K, R_wc, t_wc, -R_wc.T @ t_wc
-    from ._camera import decompose_camera
+    from ..geometry._camera import decompose_camera
 
     return _f64(decompose_camera, camera)
 
@@ -477,7 +477,7 @@ def log_observations(
     )
     if depth_points is None:
         return
-    from ._camera import backproject
+    from ..geometry._camera import backproject
 
     centre, directions = _f64(backproject, camera, image_points)
     reach = 1.05 * np.linalg.norm(_np(depth_points) - centre, axis=1)
@@ -772,7 +772,7 @@ def log_solution(
     )
     if triplets is not None:
         log_triplets(rec, camera, model_points, image_points, triplets, polyhedron=polyhedron)
-    from ._rotation import matrix_to_rotvec
+    from ..geometry._rotation import matrix_to_rotvec
 
     rvec = _f64(matrix_to_rotvec, pose[0])
     lines = [
@@ -809,7 +809,7 @@ def log_experiment(
     - `image`: the camera's image (a file path, or an RGB array), e.g. a rendering.
     - `layout`: as for `log_solution`.
     """
-    from ._experiment import METHOD_NAMES, PAPER_TABLE1
+    from ..apps._experiment import METHOD_NAMES, PAPER_TABLE1
 
     world_true = _transform(bench.R, bench.t, bench.model_points)
     distance = float(np.median(np.linalg.norm(world_true - (-bench.R_wc.T @ bench.t_wc), axis=1)))
@@ -949,7 +949,7 @@ def _robot_drawing(robot, joints) -> dict[str, np.ndarray]:
     turret and tool frames."""
     import jax
 
-    from ._robot import forward_kinematics
+    from ..apps._robot import forward_kinematics
 
     with jax.enable_x64(True):
         robot = type(robot)(*(np.asarray(a, np.float64) for a in robot))
@@ -984,7 +984,7 @@ def _robot_drawing(robot, joints) -> dict[str, np.ndarray]:
 def _ellipsoid(covariance, n_sigma: float):
     """Half sizes `(3,)` and rotation quaternion `(x, y, z, w)` of the `n_sigma` ellipsoid
     of a `(3, 3)` covariance (its principal axes)."""
-    from ._rotation import matrix_to_quaternion
+    from ..geometry._rotation import matrix_to_quaternion
 
     S = _np(covariance)
     values, vectors = np.linalg.eigh(0.5 * (S + S.T))
@@ -1075,7 +1075,7 @@ def log_pointing(
         ),
         static=True,
     )
-    from ._camera import backproject
+    from ..geometry._camera import backproject
 
     _, direction = _f64(backproject, camera, pixel[None])
     direction = direction[0] / np.linalg.norm(direction[0])

@@ -68,8 +68,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._camera import backproject, normalize_camera
-from .._status import Status
+from ..geometry._camera import backproject, normalize_camera
+from ._status import Status
 
 __all__ = ["ThreePointResult", "p3p", "three_point"]
 

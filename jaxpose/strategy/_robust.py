@@ -30,16 +30,16 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._camera import camera_matrix, undistort_pixels
+from ..geometry._camera import camera_matrix, undistort_pixels
+from ..geometry._pose import Observations, Pose, observations, transform
+from ..geometry._rotation import matrix_to_rotvec
+from ..geometry._validate import as_dist_coeffs, as_intrinsics, as_matching
+from ..solvers._linear import linear
+from ..solvers._nonlinear import nonlinear
+from ..solvers._p3p import three_point
+from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
+from ..solvers._status import Status
 from ._mixed import triplet_indices
-from ._pose import Observations, Pose, observations, transform
-from ._residuals import pixel_residuals, rms, safe_inverse_depth
-from ._rotation import matrix_to_rotvec
-from ._solver.linear import linear
-from ._solver.nonlinear import nonlinear
-from ._solver.p3p import three_point
-from ._status import Status
-from ._validate import as_dist_coeffs, as_intrinsics, as_matching
 
 __all__ = ["REFINEMENTS", "RobustResult", "robust", "solve_pnp_ransac"]
 

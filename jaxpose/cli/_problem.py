@@ -61,8 +61,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._bench import Polyhedron
-from ._validate import as_camera, as_dist_coeffs, as_intrinsics, as_points
+from ..apps._bench import Polyhedron
+from ..geometry._validate import as_camera, as_dist_coeffs, as_intrinsics, as_points
 
 __all__ = ["Problem", "ProblemError", "bench_problem", "read_problem", "write_problem"]
 
@@ -539,7 +539,7 @@ def read_problem(
             _fail(where("mask"), f"mask selects {int(mask.sum())} matches; at least 3 are needed")
     image_points = observed
     if dist is not None:
-        from ._camera import undistort_pixels
+        from ..geometry._camera import undistort_pixels
 
         image_points = undistort_pixels(observed.astype(np.float64), K, dist)
     size = None

@@ -21,8 +21,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._pose import Observations
-from ._rotation import quaternion_vector_to_matrix, rotvec_to_matrix
+from ..geometry._pose import Observations
+from ..geometry._rotation import quaternion_vector_to_matrix, rotvec_to_matrix
 
 __all__ = [
     "pixel_residuals",

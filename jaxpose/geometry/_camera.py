@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose._validate import as_dist_coeffs
+from ._validate import as_dist_coeffs
 
 __all__ = [
     "backproject",

@@ -56,7 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from ._status import Status
+from ..solvers._status import Status
 
 __all__ = [
     "JOINT_NAMES",

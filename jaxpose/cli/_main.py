@@ -51,7 +51,8 @@ def _cmd_reproduce(args) -> int:
 
     console = _console()
     _setup_jax(not args.float32)
-    from . import _bench, _experiment
+    from ..apps import _bench as _bench
+    from ..apps import _experiment as _experiment
 
     if args.noise < 0:
         raise CliError(f"--noise must be >= 0, got {args.noise}")
@@ -125,10 +126,10 @@ def _cmd_reproduce(args) -> int:
         raise CliError(f"cannot write to --out {out}: {exc}") from exc
     console.print(f"wrote {json_path}" + "".join(f", {p}" for p in figures))
     if _wants_recording(args):
-        from ._rerun import log_experiment
+        from ..viz._rerun import log_experiment
 
         mix = result.mixed
-        from ._overlay import render_bench
+        from ..viz._overlay import render_bench
 
         picture = render_bench(bench)[..., ::-1].copy()  # the bench seen by its camera (RGB)
         _record(
@@ -150,8 +151,8 @@ def _cmd_bench(args) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from . import _bench
-    from ._api import solve
+    from ..api._solve import solve
+    from ..apps import _bench as _bench
 
     bench = _bench.default_bench(seed=args.seed)
     C, M, I = (jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points))
@@ -168,7 +169,7 @@ def _cmd_bench(args) -> int:
     ours = float(np.median(times))
 
     # The equivalent OpenCV loop: P3P per triplet, best root over all matches, LM refine.
-    from ._mixed import triplet_indices
+    from ..strategy._mixed import triplet_indices
 
     K = bench.K
     world = np.asarray(bench.model_points)
@@ -269,8 +270,8 @@ def _per_triplet_fn(n: int, method: str, threshold: float | None, nonlinear_budg
     `method="three_point"`, else the mixed algorithm's `MixedResult` (cached per process)."""
     import jax
 
-    from ._mixed import initial_poses, mixed, triplet_indices
-    from ._pose import observations
+    from ..geometry._pose import observations
+    from ..strategy._mixed import initial_poses, mixed, triplet_indices
 
     triplets = triplet_indices(n, 2000)
 
@@ -289,7 +290,7 @@ def _per_triplet(console, camera, model, image, mask, threshold, *, method, nonl
     import jax.numpy as jnp
     import numpy as np
 
-    from ._mixed import triplet_indices
+    from ..strategy._mixed import triplet_indices
 
     n = len(model)
     what = "three-point method" if method == "three_point" else "mixed algorithm"
@@ -312,14 +313,14 @@ def _solve_fn(method: str, threshold: float | None):
     """`jaxpose.solve` jitted for one method and threshold (cached per process)."""
     import jax
 
-    from ._api import solve
+    from ..api._solve import solve
 
     return jax.jit(functools.partial(solve, method=method, threshold=threshold))
 
 
 def _record(args, console, name: str, log) -> None:
     """Make the recording asked for by --rrd / --spawn / --serve; `log(rec)` fills it."""
-    from . import _rerun
+    from ..viz import _rerun as _rerun
 
     with console.status("writing the rerun recording..."):
         rec = _rerun.rerun_recording(
@@ -352,11 +353,11 @@ def _cmd_solve(args) -> int:
     from rich.table import Table
 
     console = _console()
-    from ._io import ProblemError, read_problem, write_problem
+    from ._problem import ProblemError, read_problem, write_problem
 
     if args.write_example:
-        from ._bench import default_bench
-        from ._io import bench_problem
+        from ..apps._bench import default_bench
+        from ._problem import bench_problem
 
         try:
             path = write_problem(args.write_example, bench_problem(default_bench()))
@@ -382,10 +383,10 @@ def _cmd_solve(args) -> int:
     import jax
     import numpy as np
 
-    from ._camera import decompose_camera
-    from ._mixed import triplet_indices
-    from ._rotation import matrix_to_rotvec
-    from ._status import Status
+    from ..geometry._camera import decompose_camera
+    from ..geometry._rotation import matrix_to_rotvec
+    from ..solvers._status import Status
+    from ..strategy._mixed import triplet_indices
 
     n = len(problem.model_points)
     triplets = triplet_indices(n, 2000)
@@ -436,7 +437,7 @@ def _cmd_solve(args) -> int:
     table.add_row("method", f"{args.method}, solved in {elapsed:.2f} s (compilation included)")
     console.print(table)
     if args.out:
-        from ._io import _dumps
+        from ._problem import _dumps
 
         report = {
             "accepted": accepted,
@@ -461,7 +462,7 @@ def _cmd_solve(args) -> int:
             raise CliError(f"cannot write --out {out}: {exc.strerror or exc}") from None
         console.print(f"wrote {out}")
     if _wants_recording(args):
-        from ._rerun import log_solution
+        from ..viz._rerun import log_solution
 
         mix = _per_triplet(
             console,
@@ -507,11 +508,11 @@ def _point_pipeline():
     covariance, the click's point (and the true one), the robot's joints."""
     import jax
 
-    from ._api import solve
-    from ._covariance import pose_covariance
-    from ._pointing import pick
-    from ._pose import Pose
-    from ._robot import forward_kinematics, inverse_kinematics
+    from ..api._solve import solve
+    from ..apps._pointing import pick
+    from ..apps._robot import forward_kinematics, inverse_kinematics
+    from ..geometry._pose import Pose
+    from ..strategy._covariance import pose_covariance
 
     def run(C, M, I, pixel, R_true, t_true, faces, click_cov, robot):
         sol = solve(C, M, I)
@@ -538,7 +539,7 @@ def _cmd_point(args) -> int:
         raise CliError(
             f"--noise and --click-sigma must be >= 0, got {args.noise}, {args.click_sigma}"
         )
-    from ._bench import default_bench
+    from ..apps._bench import default_bench
 
     bench = default_bench(seed=args.seed, noise=args.noise)
     width, height = bench.image_size
@@ -550,9 +551,9 @@ def _cmd_point(args) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from ._pointing import polyhedron_faces
-    from ._robot import default_robot
-    from ._status import Status
+    from ..apps._pointing import polyhedron_faces
+    from ..apps._robot import default_robot
+    from ..solvers._status import Status
 
     faces = polyhedron_faces(bench.model)
     robot = default_robot()
@@ -577,8 +578,8 @@ def _cmd_point(args) -> int:
         """The rerun recording (--rrd/--spawn/--serve) of this pointing command."""
         if not _wants_recording(args):
             return
-        from ._overlay import render_bench
-        from ._rerun import log_pointing
+        from ..viz._overlay import render_bench
+        from ..viz._rerun import log_pointing
 
         picture = render_bench(bench)[..., ::-1].copy()  # the bench seen by its camera (RGB)
         found = int(hit.status) == Status.OK
@@ -794,7 +795,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     if getattr(args, "noise", 0) is None:
-        from ._bench import DEFAULT_NOISE
+        from ..apps._bench import DEFAULT_NOISE
 
         args.noise = DEFAULT_NOISE
     try:

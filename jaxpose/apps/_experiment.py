@@ -12,13 +12,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..geometry._errors import pose_error
+from ..geometry._pose import Pose, observations
+from ..solvers._linear import linear
+from ..solvers._nonlinear import nonlinear
+from ..solvers._status import Status
+from ..strategy._mixed import MixedResult, initial_poses, mixed_from_initial, triplet_indices
 from ._bench import Scene
-from ._errors import pose_error
-from ._mixed import MixedResult, initial_poses, mixed_from_initial, triplet_indices
-from ._pose import Pose, observations
-from ._solver.linear import linear
-from ._solver.nonlinear import nonlinear
-from ._status import Status
 
 __all__ = ["PAPER_TABLE1", "ExperimentResult", "run_experiment", "write_figures"]
 

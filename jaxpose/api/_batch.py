@@ -34,7 +34,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Bool, Float
 
-from ._validate import as_batched
+from ..geometry._validate import as_batched
 
 __all__ = ["batch_mesh", "batch_devices", "run_batched", "solve_batch"]
 
@@ -222,7 +222,7 @@ def run_batched(
 def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):
     """`jaxpose.solve` over the rows of a chunk: `solve_many` (batch-first, one shared
     Levenberg-Marquardt buffer) when the camera is shared, else `jax.vmap(solve)`."""
-    from ._api import solve, solve_many
+    from ._solve import solve, solve_many
 
     if not camera_batched:
         if not model_batched:
@@ -268,7 +268,7 @@ def solve_batch(
 
     **Raises:** `ValueError` naming the argument for wrong shapes, dtypes or options.
     """
-    from ._api import Solution, _check_budget, _check_method
+    from ._solve import Solution, _check_budget, _check_method
 
     _check_method(options.get("method", "mixed"))
     _check_budget(options.get("triplet_budget"))

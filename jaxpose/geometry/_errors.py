@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxpose._camera import _as_float, _safe_norm, backproject, project
+from ._camera import _as_float, _safe_norm, backproject, project
 
 __all__ = [
     "pose_error",

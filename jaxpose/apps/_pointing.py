@@ -45,11 +45,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ..geometry._camera import _as_float, backproject
+from ..geometry._pose import Pose
+from ..geometry._rotation import rotvec_to_matrix
+from ..solvers._status import Status
 from ._bench import Polyhedron
-from ._camera import _as_float, backproject
-from ._pose import Pose
-from ._rotation import rotvec_to_matrix
-from ._status import Status
 
 __all__ = ["Faces", "Hit", "face_normals", "intersect_ray", "pick", "polyhedron_faces"]
 

@@ -49,10 +49,10 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._camera import _as_float, normalize_camera, project, project_with_depth
+from ..geometry._camera import _as_float, normalize_camera, project, project_with_depth
+from ..solvers._nonlinear import _solver
+from ..solvers._status import Status
 from ._robot import Robot, forward_kinematics
-from ._solver.nonlinear import _solver
-from ._status import Status
 
 __all__ = [
     "Calibration",

@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._pose import Observations, Pose, observations, transform
-from ._residuals import pixel_residuals
-from ._rotation import hat, rotvec_to_matrix
+from ..geometry._pose import Observations, Pose, observations, transform
+from ..geometry._rotation import hat, rotvec_to_matrix
+from ..solvers._residuals import pixel_residuals
 
 __all__ = ["PoseCovariance", "pose_covariance"]
 

@@ -36,11 +36,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from .._linalg import cholesky_solve
-from .._pose import Observations, Pose, transform
-from .._residuals import depths, in_front, pixel_residuals, plane_residuals, rms, safe_inverse_depth
-from .._rotation import rotvec_to_matrix
-from .._status import Status
+from ..geometry._pose import Observations, Pose, transform
+from ..geometry._rotation import rotvec_to_matrix
+from ._linalg import cholesky_solve
+from ._residuals import depths, in_front, pixel_residuals, plane_residuals, rms, safe_inverse_depth
+from ._status import Status
 
 __all__ = ["LinearResult", "default_tol", "linear", "linear_step"]
 

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._bench import Bench, Polyhedron
-from ._models import face_normals
-from ._validate import as_camera, as_dist_coeffs, as_points
+from ..apps._bench import Bench, Polyhedron
+from ..apps._models import face_normals
+from ..geometry._validate import as_camera, as_dist_coeffs, as_points
 
 __all__ = ["draw_model", "draw_points", "overlay", "render", "render_bench"]
 
