@@ -379,3 +379,28 @@ def undistort_pixels(uv, K, dist_coeffs, *, criteria=None):
     else:
         out = cv2.undistortPoints(src, K64, d, P=K64, criteria=criteria)
     return out.reshape(-1, 2).astype(dtype)
+
+
+# --------------------------------------------------------------------------- numpy
+
+
+def project_numpy(C, points) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and depths of world points in numpy float64, for drawing and data generation
+    (no JAX, no gradient).
+
+    The camera is scaled so that `C[2, :3]` is a unit vector with `det(C[:, :3]) > 0`:
+    the returned depth is then the signed distance in front of the camera centre (model
+    units), positive in front. A point on the focal plane (`|depth| <= 1e-300`) is divided
+    by that floor: finite pixels far off the image.
+
+    **Arguments:** `C` `(3, 4)`; `points` `(n, 3)`.
+
+    **Returns:** `(pixels (n, 2), depth (n,))`.
+    """
+    C = np.asarray(C, dtype=np.float64)
+    M = C[:, :3]
+    C = C * ((np.sign(np.linalg.det(M)) or 1.0) / np.linalg.norm(M[2]))
+    h = np.asarray(points, dtype=np.float64) @ C[:, :3].T + C[:, 3]
+    depth = h[:, 2]
+    safe = np.where(np.abs(depth) > 1e-300, depth, np.copysign(1e-300, depth))
+    return h[:, :2] / safe[:, None], depth
