@@ -1,5 +1,6 @@
-"""Layer 4, the entry points: `solve` (JAX-native, differentiable), `solve_many` (batch-first), `solve_pnp`/`solve_pnp_batch` (OpenCV conventions), chunked and sharded batches."""
-
+"""Layer 4, the entry points: `solve` (JAX-native, differentiable), `solve_many` (batch-first),
+`solve_pnp`/`solve_pnp_batch` (OpenCV conventions), chunked and sharded batches.
+"""
 from ._batch import batch_devices as batch_devices
 from ._batch import batch_mesh as batch_mesh
 from ._batch import run_batched as run_batched

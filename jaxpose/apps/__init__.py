@@ -1,5 +1,6 @@
-"""Layer 5, applications: the paper's bench and experiment, model database, recognition hypothesis verification, click-to-3D pointing, the robot, camera calibration."""
-
+"""Layer 5, applications: the paper's bench and experiment, model database, recognition
+hypothesis verification, click-to-3D pointing, the robot, camera calibration.
+"""
 from ._bench import Bench as Bench
 from ._bench import Polyhedron as Polyhedron
 from ._bench import Scene as Scene

@@ -1,5 +1,7 @@
-"""Layer 1, geometry: rotations in four parameterisations, the 3x4 camera and its projection, visual-ray planes and back-projection, the pose type and the observations of one problem, the paper's error measures, input validation."""
-
+"""Layer 1, geometry: rotations in four parameterisations, the 3x4 camera and its projection,
+visual-ray planes and back-projection, the pose type and the observations of one problem,
+the paper's error measures, input validation.
+"""
 from ._camera import backproject as backproject
 from ._camera import camera_centre as camera_centre
 from ._camera import camera_matrix as camera_matrix

@@ -1,5 +1,7 @@
-"""Layer 2, solvers of ONE problem, one method per module: the three-point analytic solver, the small-movement linear solver (rotation vector, Gauss-Newton), the Levenberg-Marquardt solver (quaternion, optimistix), the residuals they minimise, the status codes they report."""
-
+"""Layer 2, solvers of ONE problem, one method per module: the three-point analytic solver, the
+small-movement linear solver (rotation vector, Gauss-Newton), the Levenberg-Marquardt solver
+(quaternion, optimistix), the residuals they minimise, the status codes they report.
+"""
 from ._linear import LinearResult as LinearResult
 from ._linear import linear as linear
 from ._nonlinear import NonlinearResult as NonlinearResult

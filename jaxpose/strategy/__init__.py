@@ -1,5 +1,7 @@
-"""Layer 3, strategies over all triplets at once: triplet selection, the mixed algorithm (three-point, linear, Levenberg-Marquardt, retries) in `jax.lax` control flow, robust scoring by consensus, pose covariance."""
-
+"""Layer 3, strategies over all triplets at once: triplet selection, the mixed algorithm
+(three-point, linear, Levenberg-Marquardt, retries) in `jax.lax` control flow, robust
+scoring by consensus, pose covariance.
+"""
 from ._covariance import PoseCovariance as PoseCovariance
 from ._covariance import pose_covariance as pose_covariance
 from ._mixed import Initial as Initial
