@@ -11,7 +11,9 @@ wide vector kernels under `jax.vmap`.
 
 from __future__ import annotations
 
-import equinox.internal as eqxi
+from typing import Any
+
+import equinox as eqx
 import jax
 import jax.flatten_util as jfu
 import jax.numpy as jnp
@@ -67,19 +69,26 @@ def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array
     return jnp.stack(x).astype(dtype)
 
 
+class _Static(eqx.Module):
+    """A pytree with no leaves that carries `value` (e.g. a pytree structure) through
+    `jit` as static data."""
+
+    value: Any = eqx.field(static=True)
+
+
 class NormalCholesky(lx.AbstractLinearSolver):
     """A lineax solver for small dense least-squares systems: the normal equations by
     `cholesky_solve` (unrolled), instead of a LAPACK QR per system.
 
     Levenberg-Marquardt's damped step solves `[J; sqrt(lambda) I] x = [r; 0]`, which is
     well conditioned by its damping; forming `A^T A` squares the condition number, so the
-    columns are equilibrated first. Used by `jaxpose._solver.nonlinear` (6 parameters).
+    columns are equilibrated first. Used by `jaxpose.solvers._nonlinear` (6 parameters).
     Forward solves only (`transpose` is not needed by optimistix's implicit adjoint,
     which solves its own system)."""
 
     def init(self, operator, options):
         del options
-        return operator.as_matrix(), eqxi.Static(operator.in_structure())
+        return operator.as_matrix(), _Static(operator.in_structure())
 
     def compute(self, state, vector, options):
         del options
