@@ -1,11 +1,14 @@
 # One command each: `make demo` runs the paper's experiment, `make test` the test suite.
 # Both create the virtual environment (.venv) themselves when it is missing or stale.
+# `make docs` builds the documentation site into site/ (`make test` builds it too, strictly).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# Material for MkDocs prints a notice about MkDocs 2.0 on every build; it is not a warning.
+MKDOCS := NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs
 
-.PHONY: demo test bench bench-quick lint format clean
+.PHONY: demo test docs bench bench-quick lint format clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,7 +21,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(MKDOCS) build --strict --site-dir site
 	$(BIN)/python -m pytest -n 2 --dist loadfile
+
+docs: $(STAMP)
+	$(MKDOCS) build --strict --site-dir site
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
@@ -37,4 +44,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) results .pytest_cache .hypothesis
+	rm -rf $(VENV) results site docs/generated .pytest_cache .hypothesis

@@ -1,0 +1,287 @@
+"""Tables of the accuracy benchmarks (`benchmarks/accuracy.py`, `p3p_rate.py`, `float32.py`,
+`robust.py`, `gradients.py`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tables_format import Missing, caption, duration, load, number, share, table
+
+
+def p3p(results: Path) -> str:
+    d, name = load(results, "p3p_rate.json")
+    names = [name]
+    rows = dict(d["rows"])
+    try:
+        d32, name32 = load(results, "p3p_rate_float32.json")
+        rows.update({k: v for k, v in d32["rows"].items() if k.startswith("jaxpose")})
+        names.append(name32)
+    except Missing:
+        pass
+    tol = d.get("args", {}).get("tol", 1e-6)
+    out_rows = [
+        (
+            solver,
+            f"{r['instances']:,}",
+            share(r["found_rate"], 3),
+            share(r["found_rate_at_1e-3"], 3),
+            number(r["p999_error"]),
+            f"{r['mean_solutions']:.3f}",
+            r["nonfinite_solutions"],
+            duration(1e-9 * r["ns_per_triplet"])
+            + (" amortised" if solver.startswith("jaxpose") else " per call"),
+        )
+        for solver, r in rows.items()
+    ]
+    header = (
+        "solver",
+        "instances",
+        f"true pose found ({tol:g})",
+        "found (1e-3)",
+        "99.9th-pct error",
+        "solutions",
+        "non-finite",
+        "time per triplet",
+    )
+    command = "python benchmarks/p3p_rate.py --n 100000 [--dtype float32]"
+    return table(header, out_rows) + "\n\n" + caption(d, *names, command=command)
+
+
+def accuracy(results: Path) -> str:
+    d, name = load(results, "accuracy.json")
+    kinds = list(d["at_optimum"])
+    methods: list[str] = []
+    for k in kinds:
+        methods += [m for m in d["at_optimum"][k] if m not in methods]
+    rows = []
+    for m in methods:
+        cells = []
+        for k in kinds:
+            c = d["at_optimum"][k].get(m)
+            if c is None:
+                cells.append("-")
+                continue
+            misses = [f"{c[key]} {label}" for key, label in _MISSES if c.get(key)]
+            cells.append(
+                f"{share(c['share_abs'])} of {c['trials']:,}"
+                + (f" ({', '.join(misses)})" if misses else "")
+            )
+        rows.append((m, *cells))
+    header = ("method", *(k.replace("_", "-") for k in kinds))
+    mode = "" if d.get("mode") == "full" else " --quick"
+    definition = d.get("protocol", {}).get("at_optimum")
+    note = f"At the ML optimum: {definition}.\n\n" if definition else ""
+    return (
+        note
+        + table(header, rows)
+        + "\n\n"
+        + caption(d, name, command=f"python benchmarks/accuracy.py{mode}")
+    )
+
+
+_MISSES = (("failed", "failed"), ("local_minima", "local minima"))
+_MEDIAN_METHODS = ("ML optimum", "jaxpose mixed", "PoseLib", "cv2 SQPNP", "cv2 ITERATIVE")
+
+
+def accuracy_medians(results: Path) -> str:
+    d, name = load(results, "accuracy.json")
+    text = []
+    for kind, sweeps in d["synthetic"].items():
+        for axis, other in (("sigma", "n"), ("n", "sigma")):
+            sweep = sweeps[axis]
+            methods = [m for m in _MEDIAN_METHODS if m in sweep["cells"][0]["methods"]]
+            rows = []
+            for value, cell in zip(sweep["values"], sweep["cells"], strict=True):
+                row = [f"{value:g}"]
+                for m in methods:
+                    c = cell["methods"].get(m)
+                    row.append(
+                        "-"
+                        if c is None
+                        else f"{c['rotation_deg']['median']:.3f} / "
+                        f"{c['translation_pct']['median']:.3f}"
+                    )
+                rows.append(row)
+            label = "sigma (px)" if axis == "sigma" else "n"
+            text.append(
+                f"**{kind.replace('_', '-')}**, {other} = {sweep[other]:g}: median rotation "
+                "error (deg) / translation error (%)\n\n" + table((label, *methods), rows)
+            )
+    text.append(caption(d, name, command="python benchmarks/accuracy.py"))
+    return "\n\n".join(text)
+
+
+def chessboard(results: Path) -> str:
+    d, name = load(results, "accuracy.json")
+    rows = []
+    for im in d["chessboard"]["images"]:
+        if not im.get("found"):
+            rows.append((im["image"], "corners not found", "", "", "", "", "", ""))
+            continue
+        ref, cv = im["jaxpose_vs_reference"], im["jaxpose_vs_cv2"]
+        rms, und = im["rms_px"], im["rms_undistorted_px"]
+        rows.append(
+            (
+                im["image"],
+                f"{ref['rotation_deg']:.2g} / {ref['translation_mm']:.2g}",
+                f"{cv['rotation_deg']:.2g} / {cv['translation_mm']:.2g}",
+                f"{rms['reference']:.4f}",
+                f"{rms['cv2']:.4f}",
+                f"{rms['jaxpose']:.4f}",
+                f"{und['cv2']:.4f}",
+                f"{und['jaxpose']:.4f}",
+            )
+        )
+    header = (
+        "image",
+        "vs reference: deg / mm",
+        "vs `cv2.solvePnP`: deg / mm",
+        "RMS reference",
+        "RMS `cv2.solvePnP`",
+        "RMS jaxpose",
+        "undistorted: cv2",
+        "undistorted: jaxpose",
+    )
+    return table(header, rows) + "\n\n" + caption(d, name, command="python benchmarks/accuracy.py")
+
+
+def float32(results: Path) -> str:
+    d, name = load(results, "float32.json", "float32_quick.json")
+    s = d["summary"]
+    rows = [
+        ("trials", f"{s['trials']:,}"),
+        ("float32 at the float64 optimum", share(s["at_float64_optimum"])),
+        ("float32 failed where float64 succeeded", share(s["float32_failed_float64_ok"])),
+        ("float64 failed where float32 succeeded", share(s["float64_failed_float32_ok"])),
+        (
+            "rotation difference, worst 99th percentile (deg)",
+            number(s["worst_rotation_diff_deg_p99"]),
+        ),
+        ("rotation difference, largest (deg)", number(s["worst_rotation_diff_deg_max"])),
+        (
+            "translation difference, worst 99th percentile (relative)",
+            number(s["worst_translation_rel_diff_p99"]),
+        ),
+        (
+            "reprojection RMS difference, worst 99th percentile (px)",
+            number(s["worst_rms_diff_px_p99"]),
+        ),
+        (
+            "float64 optimum rounded to float32, largest RMS change (px)",
+            number(s["worst_rounding_floor_px_max"]),
+        ),
+    ]
+    out = table(("float32 against float64, mixed method", "value"), rows)
+    q = d.get("p3p")
+    if q:
+        out += "\n\n" + table(
+            (
+                f"three-point solver, {q['instances']:,} random instances",
+                "found (1e-6)",
+                "found (1e-3)",
+                "non-finite",
+            ),
+            [
+                (
+                    k,
+                    share(r["found_rate"]),
+                    share(r["found_rate_at_1e-3"]),
+                    r["nonfinite_solutions"],
+                )
+                for k, r in q["rows"].items()
+            ],
+        )
+    mode = " --quick" if d.get("quick") else ""
+    return out + "\n\n" + caption(d, name, command=f"python benchmarks/float32.py{mode}")
+
+
+def float32_cells(results: Path) -> str:
+    d, name = load(results, "float32.json", "float32_quick.json")
+    rows = [
+        (
+            c["kind"].replace("_", "-"),
+            c["n"],
+            f"{c['sigma']:g}",
+            c["trials"],
+            share(c["at_float64_optimum"]),
+            f"{number(c['rotation_diff_deg']['p99'])} / {number(c['rotation_diff_deg']['max'])}",
+            number(c["translation_rel_diff"]["p99"]),
+            f"{number(c['median_rotation_error_deg']['float64'])} / "
+            f"{number(c['median_rotation_error_deg']['float32'])}",
+        )
+        for c in d["cells"]
+    ]
+    header = (
+        "case",
+        "n",
+        "sigma (px)",
+        "trials",
+        "at the float64 optimum",
+        "rotation diff. p99 / max (deg)",
+        "translation diff. p99",
+        "median rotation error f64 / f32 (deg)",
+    )
+    return table(header, rows) + "\n\n" + caption(d, name, command="python benchmarks/float32.py")
+
+
+# ----------------------------------------------------------------------------- robust, gradients
+
+_ROBUST = (
+    ("jaxpose", "jaxpose `robust`"),
+    ("cv2", "cv2 (defaults)"),
+    ("cv2_1000", "cv2 (1000 it.)"),
+    ("poselib", "PoseLib"),
+)
+
+
+def _robust(results: Path, kind: str) -> str:
+    d, name = load(results, "robust.json")
+    cells = d["cells"][kind]
+    rows = []
+    for frac, c in cells.items():
+        row = [share(float(frac), 0)]
+        for key, _ in _ROBUST:
+            r = c.get(key)
+            if r is None:
+                row.append("-")
+                continue
+            cell = f"{share(r['correct_rate'], 1)} / {duration(r['per_call_s_median'])}"
+            if "per_problem_batched_s" in r:
+                cell += f" ({duration(r['per_problem_batched_s'])})"
+            row.append(cell)
+        rows.append(row)
+    header = ("wrong matches", *(label for _, label in _ROBUST))
+    return table(header, rows) + "\n\n" + caption(d, name, command="python benchmarks/robust.py")
+
+
+def robust_bench(results: Path) -> str:
+    return _robust(results, "bench")
+
+
+def robust_random(results: Path) -> str:
+    return _robust(results, "random")
+
+
+def gradients(results: Path) -> str:
+    d, name = load(results, "gradients.json")
+    rows = [
+        (
+            r["batch"],
+            f"{duration(r['forward_s']['median'])} "
+            f"({duration(1e-3 * r['per_problem_ms']['forward'])} per problem)",
+            duration(r["forward_backward_s"]["median"]),
+            f"{r['backward_over_forward']:.3f}",
+            "yes" if r.get("gradients_finite") else "no",
+        )
+        for r in d["rows"]
+    ]
+    header = (
+        "batch",
+        "forward (median)",
+        "forward + backward (median)",
+        "backward cost / forward cost",
+        "finite",
+    )
+    out = table(header, rows)
+    out += f"\n\n*{d.get('benchmark', '')}; loss {d.get('loss', '')}; {d.get('dtype', '')}.*"
+    return out + "\n\n" + caption(d, name, command="python benchmarks/gradients.py")
