@@ -28,12 +28,12 @@ docs: $(STAMP)
 	$(MKDOCS) build --strict --site-dir site
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/run.py
-	$(BIN)/python benchmarks/p3p_rate.py --n 100000
+	$(BIN)/python -m benchmarks.run
+	$(BIN)/python -m benchmarks.p3p_rate --n 100000
 
 bench-quick: $(STAMP)
-	$(BIN)/python benchmarks/run.py --quick
-	$(BIN)/python benchmarks/p3p_rate.py --n 20000 --out /tmp/p3p_rate_quick.json
+	$(BIN)/python -m benchmarks.run --quick
+	$(BIN)/python -m benchmarks.p3p_rate --n 20000 --out /tmp/p3p_rate_quick.json
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

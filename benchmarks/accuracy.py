@@ -1,7 +1,8 @@
 """Accuracy of jaxpose beside OpenCV and PoseLib: the standard synthetic PnP protocol and
 OpenCV's chessboard images.
 
-**Synthetic protocol** (the RPnP / OPnP / MLPnP toolboxes'): `jaxpose.random_scene` with
+**Synthetic protocol** (the RPnP / OPnP / MLPnP toolboxes', in `benchmarks/_protocol.py`):
+`jaxpose.apps.random_scene` with
 `f = 800`, OpenCV's convention (world = camera frame, `C = K [I | 0]`) and camera-frame
 points uniform in `[-2,2]x[-2,2]x[4,8]` ("ordinary"), `[1,2]x[1,2]x[4,8]`
 ("quasi_singular") or on a plane `[-2,2]^2` tilted by up to 30 degrees at depth 4-8
@@ -36,8 +37,9 @@ OpenCV's reference pose (the calibration's own extrinsics, in the same file) and
     python benchmarks/accuracy.py --quick    # ~50 trials per cell
 
 Prints tables and writes `benchmarks/results/accuracy.json` (every figure, the machine,
-the library versions) and one PNG per kind (`accuracy_<kind>.png`). `run(quick, out_dir)`
-is the entry point for `benchmarks/run.py`.
+the library versions) and one PNG per kind (`accuracy_<kind>.png`; tables and plots in
+`benchmarks/_accuracy_report.py`). `run(quick, out_dir)` is the entry point for
+`benchmarks/run.py`.
 """
 
 from __future__ import annotations
@@ -46,54 +48,63 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
-import subprocess
 import sys
-import time
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+
+if __name__ == "__main__" and not __package__:  # run as `python benchmarks/accuracy.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import cv2
 import numpy as np
-from jaxtyping import Bool, Float
 
 import jaxpose as jp
+from benchmarks._accuracy_report import markdown as markdown
+from benchmarks._accuracy_report import plot as plot
+from benchmarks._accuracy_report import print_tables as print_tables
+from benchmarks._harness import (
+    RESULTS,
+    ROOT,
+    Stopwatch,
+    compilation_cache,
+    machine,
+    rich_console,
+    timeit,
+    versions,
+    write_json,
+)
+from benchmarks._protocol import (
+    ABS_TOL,
+    FOCAL,
+    JAX_METHODS,
+    KINDS,
+    LOCAL_MINIMUM,
+    ML,
+    OPENCV_FLAGS,
+    POSELIB_THRESHOLD,
+    REFINE_CRITERIA,
+    REL_TOL,
+    Answers,
+    Cell,
+    chunk_size,
+    jaxpose_name,
+    make_cell,
+    ml_optimum,
+    rotation_angle_deg,
+    solve_jaxpose,
+    solve_opencv,
+    solve_poselib,
+    summarise,
+)
+from jaxpose.solvers import Status
 
-ROOT = Path(__file__).resolve().parent.parent
-RESULTS = Path(__file__).resolve().parent / "results"
 CHESSBOARD = ROOT / "tests" / "data" / "chessboard"
 
-KINDS = ("ordinary", "quasi_singular", "planar")
 SIGMAS = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0)
 NS = (4, 6, 10, 20, 50, 100, 200)
 SIGMA_SWEEP_N = 10
 N_SWEEP_SIGMA = 2.0
-FOCAL = 800.0
-JAX_METHODS = tuple(jp.METHODS)  # ("mixed", "three_point", "linear", "nonlinear")
-OPENCV_FLAGS = {
-    "EPNP": cv2.SOLVEPNP_EPNP,
-    "SQPNP": cv2.SOLVEPNP_SQPNP,
-    "ITERATIVE": cv2.SOLVEPNP_ITERATIVE,
-    "IPPE": cv2.SOLVEPNP_IPPE,
-}
-ML = "ML optimum"
-ABS_TOL = 1e-6  # px: "at the optimum" when within this of the ML optimum's RMS error
-REL_TOL = 1e-9  # the stricter relative criterion, reported beside it
-LOCAL_MINIMUM = 1e-3  # px above the optimum: another stationary point or an unrefined answer
-REFINE_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 200, 1e-15)
-POSELIB_THRESHOLD = 1e4  # px: every match is an inlier, so the answer is least squares
 MAX_REPRODUCERS = {"mixed": 25}  # per kind and jaxpose method (others: 3)
-
-
-def jaxpose_name(method: str) -> str:
-    return f"jaxpose {method}"
-
-
-def method_names(kind: str, jax_methods: Sequence[str] = JAX_METHODS) -> list[str]:
-    """The methods run on scenes of `kind`, in table order (IPPE on planar scenes only)."""
-    cv = [f"cv2 {k}" for k in OPENCV_FLAGS if k != "IPPE" or kind == "planar"]
-    return [jaxpose_name(m) for m in jax_methods] + cv + ["PoseLib"]
 
 
 # --------------------------------------------------------------------------- schedule
@@ -147,269 +158,6 @@ def default_schedule(quick: bool, trials: int | None = None) -> Schedule:
     )
 
 
-def chunk_size(n: int, method: str = "mixed") -> int:
-    """Problems per `solve_pnp_batch` call at `n` matches (a fixed shape: one compilation
-    per `(n, method)`; the last chunk is padded). Bounded by memory: the linear and LM
-    steps hold about `triplets x n` rows per problem; the non-linear method runs LM on
-    every triplet, so it gets half as many problems once that is large."""
-    rows = len(jp.triplet_indices(n, 2000)) * n
-    size = max(1, min(50, int(2e6 // rows)))
-    return max(1, size // 2) if method == "nonlinear" and rows > 10_000 else size
-
-
-# --------------------------------------------------------------------------- geometry
-
-
-def rotvec_to_matrix(r: Float[np.ndarray, "B 3"]) -> Float[np.ndarray, "B 3 3"]:
-    """Rodrigues' formula for a batch of rotation vectors (numpy, float64)."""
-    r = np.asarray(r, np.float64).reshape(-1, 3)
-    theta = np.linalg.norm(r, axis=1)
-    safe = np.where(theta > 0, theta, 1.0)
-    u = r / safe[:, None]
-    X = np.zeros((len(r), 3, 3))
-    X[:, 0, 1], X[:, 0, 2], X[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
-    X = X - np.swapaxes(X, 1, 2)
-    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
-    return np.eye(3) + s * X + (1 - c) * (X @ X)
-
-
-def rotation_error_deg(
-    R_true: Float[np.ndarray, "B 3 3"], R_est: Float[np.ndarray, "B 3 3"]
-) -> Float[np.ndarray, " B"]:
-    """The largest angle (degrees) between matching axes (columns) of the two rotations;
-    `2 asin(|a - b| / 2)` for unit vectors, accurate at small angles (unlike `acos`)."""
-    d = np.linalg.norm(np.asarray(R_true) - np.asarray(R_est), axis=-2)
-    return np.degrees(np.max(2 * np.arcsin(np.clip(d / 2, 0, 1)), axis=-1))
-
-
-def rotation_angle_deg(
-    R_a: Float[np.ndarray, "B 3 3"], R_b: Float[np.ndarray, "B 3 3"]
-) -> Float[np.ndarray, " B"]:
-    """The angle (degrees) of the rotation `R_a^T R_b`, from `|R_a - R_b|_F`."""
-    frob = np.linalg.norm(np.asarray(R_a) - np.asarray(R_b), axis=(-2, -1))
-    return np.degrees(2 * np.arcsin(np.clip(frob / (2 * np.sqrt(2)), 0, 1)))
-
-
-def translation_error_pct(
-    t_true: Float[np.ndarray, "B 3"], t_est: Float[np.ndarray, "B 3"]
-) -> Float[np.ndarray, " B"]:
-    """`100 |t_est - t_true| / |t_true|`."""
-    return 100 * np.linalg.norm(t_est - t_true, axis=-1) / np.linalg.norm(t_true, axis=-1)
-
-
-def reprojection_rms(
-    obj: Float[np.ndarray, "B n 3"],
-    img: Float[np.ndarray, "B n 2"],
-    K: Float[np.ndarray, "3 3"],
-    R: Float[np.ndarray, "B 3 3"],
-    t: Float[np.ndarray, "B 3"],
-) -> Float[np.ndarray, " B"]:
-    """Eq. 8 for a batch of poses (pinhole `K`, no distortion): the RMS over the matches of
-    the pixel distance between projection and observation."""
-    p = np.einsum("bij,bnj->bni", R, obj) + t[:, None, :]
-    q = p @ K.T
-    uv = q[..., :2] / q[..., 2:]
-    return np.sqrt(np.mean(np.sum((uv - img) ** 2, axis=-1), axis=-1))
-
-
-# --------------------------------------------------------------------------- instances
-
-
-@dataclasses.dataclass(frozen=True)
-class Cell:
-    """The seeded trials of one cell: `obj (B, n, 3)`, `img (B, n, 2)`, shared `K`, true
-    camera-frame pose `R (B, 3, 3)`, `t (B, 3)`."""
-
-    kind: str
-    n: int
-    sigma: float
-    seed: tuple[int, ...]
-    obj: np.ndarray
-    img: np.ndarray
-    K: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-
-
-def make_cell(kind: str, n: int, sigma: float, trials: int, seed: int = 0) -> Cell:
-    """`trials` instances of `jaxpose.random_scene` (OpenCV's convention, so the scene's
-    model-to-world pose is the camera-frame pose). One generator per cell, seeded by
-    `(seed, kind, n, sigma)`: a shorter run's trials are a prefix of a longer run's."""
-    key = (seed, KINDS.index(kind), n, round(sigma * 1000))
-    rng = np.random.default_rng(key)
-    scenes = [
-        jp.random_scene(rng, n, noise=sigma, kind=kind, focal=FOCAL, world_camera=False)
-        for _ in range(trials)
-    ]
-    return Cell(
-        kind=kind,
-        n=n,
-        sigma=float(sigma),
-        seed=key,
-        obj=np.stack([s.model_points for s in scenes]),
-        img=np.stack([s.image_points for s in scenes]),
-        K=scenes[0].camera[:, :3].copy(),
-        R=np.stack([s.R for s in scenes]),
-        t=np.stack([s.t for s in scenes]),
-    )
-
-
-# --------------------------------------------------------------------------- solvers
-
-
-@dataclasses.dataclass
-class Answers:
-    """Poses returned by one method on the first `len(ok)` trials of a cell."""
-
-    R: np.ndarray
-    t: np.ndarray
-    ok: np.ndarray
-    seconds: float
-    extra: dict = dataclasses.field(default_factory=dict)
-
-
-def _empty(B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return np.tile(np.eye(3), (B, 1, 1)), np.zeros((B, 3)), np.zeros(B, bool)
-
-
-def solve_jaxpose(cell: Cell, method: str, trials: int, chunk: int | None = None) -> Answers:
-    """`jaxpose.solve_pnp_batch` over the first `trials` trials, in padded chunks of
-    `chunk` (default `chunk_size(n)`; every call has the same shapes: one compilation per
-    `(n, method)`)."""
-    chunk = chunk or chunk_size(cell.n, method)
-    R, t, ok = _empty(trials)
-    t0 = time.perf_counter()
-    first = None
-    for s in range(0, trials, chunk):
-        idx = np.minimum(np.arange(s, s + chunk), trials - 1)  # pad with the last trial
-        c0 = time.perf_counter()
-        okb, rv, tv = jp.solve_pnp_batch(cell.obj[idx], cell.img[idx], cell.K, method=method)
-        if first is None:
-            first = time.perf_counter() - c0
-        m = min(chunk, trials - s)
-        R[s : s + m], t[s : s + m], ok[s : s + m] = rotvec_to_matrix(rv[:m]), tv[:m], okb[:m]
-    seconds = time.perf_counter() - t0
-    return Answers(R, t, ok, seconds, {"chunk": chunk, "first_call_s": first})
-
-
-def solve_opencv(cell: Cell, flag: int, trials: int) -> Answers:
-    """`cv2.solvePnP` with `flag`, one call per trial (an OpenCV error is a failure)."""
-    R, t, ok = _empty(trials)
-    t0 = time.perf_counter()
-    for i in range(trials):
-        try:
-            good, rv, tv = cv2.solvePnP(cell.obj[i], cell.img[i], cell.K, None, flags=flag)
-        except cv2.error:
-            continue
-        if good:
-            R[i], t[i], ok[i] = cv2.Rodrigues(rv)[0], tv.ravel(), True
-    return Answers(R, t, ok, time.perf_counter() - t0)
-
-
-def poselib_camera(K: np.ndarray) -> dict:
-    return {
-        "model": "PINHOLE",
-        "width": 640,
-        "height": 480,
-        "params": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]],
-    }
-
-
-def solve_poselib(cell: Cell, trials: int) -> Answers:
-    """`poselib.estimate_absolute_pose`: LO-RANSAC (P3P samples) with a 10^4 px threshold,
-    so every match is an inlier and the sample of lowest squared error wins, then a
-    least-squares (`TRIVIAL` loss) Levenberg-Marquardt refinement on all matches."""
-    import poselib
-
-    camera = poselib_camera(cell.K)
-    ransac = {"max_reproj_error": POSELIB_THRESHOLD}
-    bundle = {"loss_type": "TRIVIAL"}
-    R, t, ok = _empty(trials)
-    t0 = time.perf_counter()
-    for i in range(trials):
-        pose, _ = poselib.estimate_absolute_pose(cell.img[i], cell.obj[i], camera, ransac, bundle)
-        R[i], t[i], ok[i] = pose.R, pose.t, True
-    return Answers(R, t, ok, time.perf_counter() - t0)
-
-
-def ml_optimum(cell: Cell, trials: int) -> tuple[Answers, np.ndarray, list[str]]:
-    """The reference: for each trial, the lowest Eq. 8 error of `cv2.solvePnPRefineLM`
-    started from SQPnP, EPnP and the true pose. Returns the answers, their RMS errors
-    and which start won."""
-    R, t, ok = _empty(trials)
-    err = np.full(trials, np.inf)
-    won: list[str] = []
-    t0 = time.perf_counter()
-    for i in range(trials):
-        obj, img = cell.obj[i], cell.img[i]
-        starts = {"true": (cv2.Rodrigues(cell.R[i])[0], cell.t[i].reshape(3, 1).copy())}
-        for name in ("SQPNP", "EPNP"):
-            try:
-                good, rv, tv = cv2.solvePnP(obj, img, cell.K, None, flags=OPENCV_FLAGS[name])
-            except cv2.error:
-                continue
-            if good and np.isfinite(rv).all() and np.isfinite(tv).all():
-                starts[name] = (rv, tv)
-        best = "none"
-        for name, (rv, tv) in starts.items():
-            rv, tv = cv2.solvePnPRefineLM(obj, img, cell.K, None, rv, tv, criteria=REFINE_CRITERIA)
-            Ri = cv2.Rodrigues(rv)[0]
-            e = reprojection_rms(obj[None], img[None], cell.K, Ri[None], tv.reshape(1, 3))[0]
-            if e < err[i]:
-                err[i], R[i], t[i], ok[i], best = e, Ri, tv.ravel(), True, name
-        won.append(best)
-    return Answers(R, t, ok, time.perf_counter() - t0), err, won
-
-
-# --------------------------------------------------------------------------- statistics
-
-
-def _stats(x: np.ndarray) -> dict:
-    if len(x) == 0:
-        return {"median": None, "mean": None, "p90": None, "max": None}
-    return {
-        "median": float(np.median(x)),
-        "mean": float(np.mean(x)),
-        "p90": float(np.quantile(x, 0.9)),
-        "max": float(np.max(x)),
-    }
-
-
-def summarise(
-    cell: Cell, ans: Answers, ml_err: np.ndarray
-) -> tuple[dict, Bool[np.ndarray, " B"], np.ndarray]:
-    """Error statistics of one method on one cell, and where it missed the ML optimum.
-
-    Failures (not `ok`, or non-finite) are left out of the error statistics, counted in
-    `failed`, and count as not at the optimum."""
-    B = len(ans.ok)
-    R_true, t_true = cell.R[:B], cell.t[:B]
-    finite = np.isfinite(ans.R).all(axis=(1, 2)) & np.isfinite(ans.t).all(axis=1)
-    valid = ans.ok & finite
-    rot = rotation_error_deg(R_true, ans.R)
-    trans = translation_error_pct(t_true, ans.t)
-    with np.errstate(all="ignore"):
-        rms = reprojection_rms(cell.obj[:B], cell.img[:B], cell.K, ans.R, ans.t)
-    gap = np.where(valid, rms - ml_err[:B], np.inf)
-    at_abs = gap <= ABS_TOL
-    at_rel = gap <= REL_TOL * ml_err[:B]
-    out = {
-        "trials": int(B),
-        "failed": int(B - valid.sum()),
-        "rotation_deg": _stats(rot[valid]),
-        "translation_pct": _stats(trans[valid]),
-        "reprojection_px": _stats(rms[valid]),
-        "at_optimum_abs": int(at_abs.sum()),
-        "at_optimum_rel": int(at_rel.sum()),
-        "above_optimum": int((valid & ~at_abs).sum()),
-        "local_minima": int((valid & (gap > LOCAL_MINIMUM)).sum()),
-        "max_gap_px": float(np.max(gap[valid])) if valid.any() else None,
-        "below_reference": int((valid & (gap < -ABS_TOL)).sum()),
-        "seconds": ans.seconds,
-    } | ans.extra
-    return out, ~at_abs, gap
-
-
 def reproducer(cell: Cell, i: int, name: str, ans: Answers, ml: Answers, ml_err, gap) -> dict:
     """A trial a method got wrong, with everything needed to run it again."""
     return {
@@ -455,7 +203,7 @@ def diagnose(rep: dict, *, max_steps: int = 500) -> dict:
             jnp.asarray(a, jnp.float64) for a in (C, rep["object_points"], rep["image_points"])
         )
         sol = jax.jit(jp.solve)(*args)
-        status = jp.Status(int(sol.status))
+        status = Status(int(sol.status))
         out = {
             "accepted": bool(sol.accepted),
             "status": status.name,
@@ -468,14 +216,14 @@ def diagnose(rep: dict, *, max_steps: int = 500) -> dict:
             return out
 
         def per_triplet(C, model, image):
-            obs = jp.observations(C, model, image)
-            res = jp.mixed(obs, nonlinear_budget=32)
+            obs = jp.geometry.observations(C, model, image)
+            res = jp.strategy.mixed(obs, nonlinear_budget=32)
             ini = res.initial
             R = jnp.concatenate([ini.pose.R[:, None], ini.alt_pose.R], axis=1)
             t = jnp.concatenate([ini.pose.t[:, None], ini.alt_pose.t], axis=1)
 
             def refine(R, t):
-                return jp.nonlinear(obs, jp.Pose(R, t), max_steps=max_steps)
+                return jp.solvers.nonlinear(obs, jp.geometry.Pose(R, t), max_steps=max_steps)
 
             refined = jax.vmap(jax.vmap(refine))(R, t)
             root_error = jnp.concatenate([ini.error[:, None], ini.alt_error], axis=1)
@@ -490,8 +238,8 @@ def diagnose(rep: dict, *, max_steps: int = 500) -> dict:
         for k in range(len(res.error)):
             triplets.append(
                 {
-                    "initial_status": jp.Status(int(res.initial.status[k])).name,
-                    "status": jp.Status(int(res.status[k])).name,
+                    "initial_status": Status(int(res.initial.status[k])).name,
+                    "status": Status(int(res.status[k])).name,
                     "error_px": float(res.error[k]),
                     "root": int(res.root[k]),
                     "root_p3p_error_px": [float(e) for e in np.asarray(root_error[k])[roots[k]]],
@@ -602,11 +350,14 @@ def chessboard(data: Path = CHESSBOARD, method: str = "mixed") -> dict:
         flipped = rms(corners[::-1], rv_ref, tv_ref, dist) < rms(corners, rv_ref, tv_ref, dist)
         if flipped:
             corners = np.ascontiguousarray(corners[::-1])
-        t0 = time.perf_counter()
-        ok, rv_jp, tv_jp = jp.solve_pnp(board, corners, K, dist, method=method)
-        seconds = time.perf_counter() - t0
+        call = timeit(
+            lambda: jp.solve_pnp(board, corners, K, dist, method=method),
+            warmup=0,
+            repeat=1,
+        )
+        (ok, rv_jp, tv_jp), seconds = call.result, call.best
         _, rv_cv, tv_cv = cv2.solvePnP(board, corners, K, dist)
-        undist = jp.undistort_pixels(corners, K, dist)
+        undist = jp.geometry.undistort_pixels(corners, K, dist)
         poses = {"reference": (rv_ref, tv_ref), "cv2": (rv_cv, tv_cv), "jaxpose": (rv_jp, tv_jp)}
         Rs = {k: cv2.Rodrigues(np.asarray(v[0], np.float64))[0] for k, v in poses.items()}
         ts = {k: np.asarray(v[1], np.float64).ravel() for k, v in poses.items()}
@@ -647,53 +398,6 @@ def chessboard(data: Path = CHESSBOARD, method: str = "mixed") -> dict:
     }
 
 
-# --------------------------------------------------------------------------- machine
-
-
-def machine() -> dict:
-    """The machine and the load on it (timings here are from a shared machine)."""
-    info = {
-        "platform": platform.platform(),
-        "python": sys.version.split()[0],
-        "cpu_count": os.cpu_count(),
-        "load_average": list(os.getloadavg()),
-    }
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                info["cpu"] = line.split(":", 1)[1].strip()
-                break
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemTotal"):
-                info["memory_gb"] = round(int(line.split()[1]) / 2**20, 1)
-                break
-    except OSError:  # pragma: no cover - not Linux
-        pass
-    try:
-        import jax
-
-        info["jax_devices"] = [str(d) for d in jax.devices()]
-    except RuntimeError:  # pragma: no cover
-        pass
-    return info
-
-
-def versions() -> dict:
-    out = {"jaxpose": jp.__version__, "opencv": cv2.__version__}
-    for pkg in ("jax", "jaxlib", "numpy", "optimistix", "equinox", "poselib", "matplotlib"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:  # pragma: no cover
-            out[pkg] = None
-    try:
-        out["jaxpose_commit"] = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, timeout=10
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):  # pragma: no cover
-        out["jaxpose_commit"] = None
-    return out
-
-
 # --------------------------------------------------------------------------- run
 
 
@@ -730,14 +434,12 @@ def run(
 
     **Returns:** the JSON-ready result (also written to `out_dir / f"accuracy{tag}.json"`).
     """
-    from rich.console import Console
-
-    console = console or Console(width=None if sys.stdout.isatty() else 160)
+    console = console or rich_console(160)
     out = Path(out_dir) if out_dir is not None else RESULTS
     tag = ("_quick" if quick else "") if tag is None else tag
     out.mkdir(parents=True, exist_ok=True)
     schedule = schedule or default_schedule(quick, trials)
-    start = time.perf_counter()
+    watch = Stopwatch()
     load_start = list(os.getloadavg())
     cells: dict[tuple, dict] = {}
     reproducers: list[dict] = []
@@ -812,12 +514,11 @@ def run(
         result["chessboard"] = chessboard()
     result["machine"] = machine() | {"load_average_start": load_start}
     result["versions"] = versions()
-    result["seconds"] = time.perf_counter() - start
-    path = out / f"accuracy{tag}.json"
-    path.write_text(json.dumps(result, indent=1))
+    result["seconds"] = watch.seconds
+    path = write_json(out / f"accuracy{tag}.json", result)
     if plots:
         result["plots"] = [str(p) for p in plot(result, out, tag)]
-        path.write_text(json.dumps(result, indent=1))
+        write_json(path, result)
     print_tables(result, console)
     console.print(f"wrote {path} ({result['seconds']:.0f} s)")
     return result
@@ -844,253 +545,7 @@ def at_optimum(cells, kinds: Sequence[str]) -> dict:
     return out
 
 
-# --------------------------------------------------------------------------- output
-
-
-def _table_rows(result: dict, kind: str, sweep: str):
-    """(header, rows) of the medians table of one sweep: 'rotation deg / translation %'."""
-    block = result["synthetic"][kind][sweep]
-    header = [str(v) if sweep == "n" else f"{v:g}" for v in block["values"]]
-    names = [ML] + [m for m in block["cells"][0]["methods"] if m != ML]
-    rows = []
-    for name in names:
-        cells = []
-        for cell in block["cells"]:
-            row = cell["methods"].get(name)
-            if not row or not row.get("trials"):
-                cells.append("-")
-                continue
-            rot, tr = row["rotation_deg"]["median"], row["translation_pct"]["median"]
-            text = "-" if rot is None else f"{rot:.3f} / {tr:.3f}"
-            if row["trials"] != cell["trials"]:
-                text += f" [{row['trials']}]"
-            if row["failed"]:
-                text += f" ({row['failed']} failed)"
-            cells.append(text)
-        rows.append((name, cells))
-    return header, rows
-
-
-LEGEND = (
-    "[k]: over the first k trials of the cell only; (f failed): no pose returned (left "
-    "out of the medians); -: not run"
-)
-
-
-def _optimum_cell(acc: dict | None) -> str:
-    if not acc:
-        return "-"
-    share = 100 * acc["share_abs"]
-    text = f"{share:.2f}% ({acc['at_optimum_abs']}/{acc['trials']})"
-    notes = []
-    if acc["failed"]:
-        notes.append(f"{acc['failed']} failed")
-    if acc["local_minima"]:
-        notes.append(f"{acc['local_minima']} > {LOCAL_MINIMUM:g} px above")
-    return text + "".join(f", {x}" for x in notes)
-
-
-def print_tables(result: dict, console) -> None:
-    """The tables, with rich: medians per sweep and kind, the at-the-optimum shares, the
-    chessboard images."""
-    from rich.table import Table
-
-    for kind, sweeps in result["synthetic"].items():
-        for sweep, block in sweeps.items():
-            header, rows = _table_rows(result, kind, sweep)
-            fixed = f"n = {block['n']}" if sweep == "sigma" else f"sigma = {block['sigma']:g} px"
-            label = "sigma (px)" if sweep == "sigma" else "n"
-            trials = ", ".join(str(c["trials"]) for c in block["cells"])
-            table = Table(
-                title=f"{kind}, {fixed}: median rotation error (deg) / translation error (%)"
-                f"\ntrials per cell: {trials}",
-                title_justify="left",
-                caption=LEGEND,
-                caption_justify="left",
-            )
-            table.add_column(f"method \\ {label}")
-            for h in header:
-                table.add_column(h, justify="right")
-            for name, cells in rows:
-                table.add_row(name, *cells)
-            console.print(table)
-    table = Table(
-        title=f"Trials at the ML optimum (RMS within {ABS_TOL:g} px), all cells of each kind",
-        title_justify="left",
-    )
-    table.add_column("method")
-    kinds = list(result["at_optimum"])
-    for kind in kinds:
-        table.add_column(kind, justify="right")
-    names = list(dict.fromkeys(n for k in kinds for n in result["at_optimum"][k]))
-    for name in names:
-        table.add_row(name, *(_optimum_cell(result["at_optimum"][k].get(name)) for k in kinds))
-    console.print(table)
-    if "chessboard" in result:
-        table = Table(title="OpenCV chessboard images (left camera)", title_justify="left")
-        for col in (
-            "image",
-            "rot. vs ref (deg)",
-            "trans. vs ref (mm)",
-            "rot. vs cv2 (deg)",
-            "trans. vs cv2 (mm)",
-            "RMS ref (px)",
-            "RMS cv2",
-            "RMS jaxpose",
-            "undist. cv2",
-            "undist. jaxpose",
-        ):
-            table.add_column(col, justify="right")
-        for im in result["chessboard"]["images"]:
-            if not im["found"]:
-                table.add_row(im["image"], *(["not found"] + ["-"] * 8))
-                continue
-            a, b = im["jaxpose_vs_reference"], im["jaxpose_vs_cv2"]
-            e, u = im["rms_px"], im["rms_undistorted_px"]
-            table.add_row(
-                im["image"],
-                f"{a['rotation_deg']:.4f}",
-                f"{a['translation_mm']:.3f}",
-                f"{b['rotation_deg']:.2e}",
-                f"{b['translation_mm']:.2e}",
-                f"{e['reference']:.4f}",
-                f"{e['cv2']:.4f}",
-                f"{e['jaxpose']:.4f}",
-                f"{u['cv2']:.4f}",
-                f"{u['jaxpose']:.4f}",
-            )
-        console.print(table)
-
-
-def markdown(result: dict) -> str:
-    """The tables as Markdown (for the README)."""
-    lines = []
-    for kind, sweeps in result["synthetic"].items():
-        for sweep, block in sweeps.items():
-            header, rows = _table_rows(result, kind, sweep)
-            fixed = f"n = {block['n']}" if sweep == "sigma" else f"sigma = {block['sigma']:g} px"
-            label = "sigma (px)" if sweep == "sigma" else "n"
-            trials = ", ".join(str(c["trials"]) for c in block["cells"])
-            lines += [
-                f"**{kind.replace('_', '-')}, {fixed}**: median rotation error (deg) / "
-                f"translation error (%); trials per cell: {trials}. {LEGEND}.",
-                "",
-                f"| method \\ {label} | " + " | ".join(header) + " |",
-                "|---|" + "---|" * len(header),
-            ]
-            lines += [f"| {name} | " + " | ".join(cells) + " |" for name, cells in rows]
-            lines.append("")
-    kinds = list(result["at_optimum"])
-    names = list(dict.fromkeys(n for k in kinds for n in result["at_optimum"][k]))
-    lines += [
-        f"**At the ML optimum** (RMS reprojection error within {ABS_TOL:g} px of the "
-        "reference), over all cells of each kind:",
-        "",
-        "| method | " + " | ".join(k.replace("_", "-") for k in kinds) + " |",
-        "|---|" + "---|" * len(kinds),
-    ]
-    for name in names:
-        cells = [_optimum_cell(result["at_optimum"][k].get(name)) for k in kinds]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    lines.append("")
-    if "chessboard" in result:
-        lines += [
-            "**OpenCV chessboard images** (jaxpose mixed; reference = OpenCV's calibration "
-            "extrinsics; RMS reprojection error in image pixels, and on undistorted pixels, "
-            "the criterion jaxpose minimises):",
-            "",
-            "| image | rotation vs reference (deg) | translation vs reference (mm) | "
-            "rotation vs cv2.solvePnP (deg) | translation vs cv2.solvePnP (mm) | "
-            "RMS reference | RMS cv2.solvePnP | RMS jaxpose | undistorted: cv2 | "
-            "undistorted: jaxpose |",
-            "|---|---|---|---|---|---|---|---|---|---|",
-        ]
-        for im in result["chessboard"]["images"]:
-            if not im["found"]:
-                lines.append(f"| {im['image']} | corners not found |||||||||")
-                continue
-            a, b = im["jaxpose_vs_reference"], im["jaxpose_vs_cv2"]
-            e, u = im["rms_px"], im["rms_undistorted_px"]
-            lines.append(
-                f"| {im['image']} | {a['rotation_deg']:.4f} | {a['translation_mm']:.3f} | "
-                f"{b['rotation_deg']:.1e} | {b['translation_mm']:.1e} | "
-                f"{e['reference']:.4f} | {e['cv2']:.4f} | {e['jaxpose']:.4f} | "
-                f"{u['cv2']:.4f} | {u['jaxpose']:.4f} |"
-            )
-        lines.append("")
-    return "\n".join(lines)
-
-
-def plot(result: dict, out: Path, tag: str = "") -> list[Path]:
-    """One figure per kind: median rotation and translation errors versus sigma (n = 10)
-    and versus n (sigma = 2 px), every method and the ML optimum (dashed, on top). A
-    method that ran on only a prefix of some cell's trials is drawn dotted and hollow."""
-    from matplotlib.figure import Figure
-
-    paths = []
-    for kind, sweeps in result["synthetic"].items():
-        fig = Figure(figsize=(12, 9), layout="constrained")
-        axes = fig.subplots(2, 2)
-        for col, sweep in enumerate(("sigma", "n")):
-            if sweep not in sweeps:
-                continue
-            block = sweeps[sweep]
-            x = np.asarray(block["values"], float)
-            names = [m for m in block["cells"][0]["methods"] if m != ML] + [ML]
-            for row, (metric, unit) in enumerate(
-                (("rotation_deg", "rotation error (deg)"), ("translation_pct", "translation (%)"))
-            ):
-                ax = axes[row, col]
-                for k, name in enumerate(names):
-                    y, partial = [], False
-                    for cell in block["cells"]:
-                        r = cell["methods"].get(name, {})
-                        v = r.get(metric, {}).get("median") if r.get("trials") else None
-                        y.append(np.nan if v is None else v)
-                        partial |= bool(r.get("trials")) and r["trials"] != cell["trials"]
-                    if name == ML:
-                        style = {"color": "black", "ls": "--", "lw": 2, "zorder": 10}
-                    else:
-                        style = {"color": f"C{k % 10}", "ls": ":" if partial else "-"}
-                        if partial:
-                            style["mfc"] = "none"
-                    marker = "o" if name.startswith("jaxpose") else "s"
-                    ax.plot(x, y, marker=marker, ms=4, label=name, **style)
-                if sweep == "n":
-                    ax.set_xscale("log")
-                    ax.set_xticks(x, [str(int(v)) for v in x])
-                    ax.set_xlabel(f"n (sigma = {block['sigma']:g} px)")
-                else:
-                    ax.set_xlabel(f"sigma (px), n = {block['n']}")
-                ax.set_yscale("log")
-                ax.set_ylabel(f"median {unit}")
-                ax.grid(True, which="both", alpha=0.3)
-        axes[0, 0].legend(fontsize=7, ncol=2)
-        fig.suptitle(
-            f"{kind.replace('_', '-')} scenes: median errors ({result['mode']} run; dotted, "
-            "hollow: a method run on the first trials of some cells only)"
-        )
-        path = out / f"accuracy{tag}_{kind}.png"
-        fig.savefig(path, dpi=110)
-        paths.append(path)
-    return paths
-
-
 # --------------------------------------------------------------------------- command line
-
-
-def enable_compilation_cache() -> None:
-    """JAX's persistent compilation cache (shared with the `jaxpose` command): a second run
-    loads its 28 compiled `(n, method)` programs instead of compiling them again."""
-    import jax
-
-    cache = Path.home() / ".cache" / "jaxpose" / "xla"
-    try:
-        cache.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    except OSError:  # pragma: no cover - read-only home
-        pass
 
 
 def main(argv: Sequence[str] | None = None) -> dict:
@@ -1107,19 +562,17 @@ def main(argv: Sequence[str] | None = None) -> dict:
     )
     args = parser.parse_args(argv)
     if args.from_json:
-        from rich.console import Console
-
         path = Path(args.from_json)
         result = json.loads(path.read_text())
         tag = path.stem.removeprefix("accuracy")
         plot(result, Path(args.out) if args.out else path.parent, tag)
-        print_tables(result, Console(width=None if sys.stdout.isatty() else 160))
+        print_tables(result, rich_console(160))
         if args.markdown:
             Path(args.markdown).write_text(markdown(result))
         return result
     if args.trials is not None and args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
-    enable_compilation_cache()
+    compilation_cache()  # a second run loads its 28 `(n, method)` programs
     result = run(
         args.quick,
         args.out,

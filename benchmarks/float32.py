@@ -1,19 +1,20 @@
 """float32 against float64: how far jaxpose's answers move when it computes in float32.
 
-**Protocol:** the standard synthetic PnP protocol of `benchmarks/accuracy.py` (its
-`make_cell`: `f = 800`, 640x480 image with a centred principal point, OpenCV's
-convention; camera-frame points uniform in `[-2,2]x[-2,2]x[4,8]` "ordinary",
-`[1,2]x[1,2]x[4,8]` "quasi_singular", or on a plane `[-2,2]^2` tilted by up to 30
-degrees at depth 4-8 "planar"), `n` in (4, 6, 10, 20, 50), pixel noise `sigma` in
-(0, 0.5, 2) px. Every cell's seeded trials are solved twice by the mixed method with its
-default settings:
+**Protocol:** the standard synthetic PnP protocol of `benchmarks/accuracy.py`
+(`benchmarks/_protocol.py`, its `make_cell`: `f = 800`, 640x480 image with a centred
+principal point, OpenCV's convention; camera-frame points uniform in
+`[-2,2]x[-2,2]x[4,8]` "ordinary", `[1,2]x[1,2]x[4,8]` "quasi_singular", or on a plane
+`[-2,2]^2` tilted by up to 30 degrees at depth 4-8 "planar"), `n` in (4, 6, 10, 20, 50),
+pixel noise `sigma` in (0, 0.5, 2) px. Every cell's seeded trials are solved twice by the
+mixed method with its default settings:
 
 - float64: `jaxpose.solve_pnp_batch` (x64 enabled by this script), in the same
   fixed-size chunks as `benchmarks/accuracy.py`;
-- float32: the same computation, `jax.jit` of `jaxpose.solve_many(jaxpose.camera_matrix(K),
-  obj, img, method=...)`, the function `solve_pnp_batch` compiles, fed float32 arrays
-  (`solve_pnp_batch` itself always casts to float64; `solve_many` keeps its inputs'
-  dtype, so this is the library's float32 path).
+- float32: the same computation, `jax.jit` of
+  `jaxpose.solve_many(jaxpose.geometry.camera_matrix(K), obj, img, method=...)`, the
+  function `solve_pnp_batch` compiles, fed float32 arrays (`solve_pnp_batch` itself
+  always casts to float64; `solve_many` keeps its inputs' dtype, so this is the
+  library's float32 path).
 
 **Per cell** (over the trials where both are accepted unless said otherwise; float32
 rotations are first taken to the nearest rotation in float64, as a rotation vector would
@@ -53,25 +54,26 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+if __name__ == "__main__" and not __package__:  # run as `python benchmarks/float32.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-if str(HERE) not in sys.path:
-    sys.path.insert(0, str(HERE))
+import jaxpose as jp
+from benchmarks import _protocol as protocol
+from benchmarks import p3p_rate
+from benchmarks._harness import RESULTS, Stopwatch, compilation_cache, versions, write_json
 
-import accuracy  # noqa: E402  (the protocol's scenes and metrics)
-import p3p_rate  # noqa: E402
-
-KINDS = accuracy.KINDS
+KINDS = protocol.KINDS
 NS = (4, 6, 10, 20, 50)
 SIGMAS = (0.0, 0.5, 2.0)
 RMS_TOL = 1e-3  # px: "at the float64 optimum" (see the module docstring)
-RESULTS = HERE / "results"
 
 
 def default_trials(quick: bool) -> dict[int, int]:
@@ -84,25 +86,19 @@ def default_trials(quick: bool) -> dict[int, int]:
 
 
 def _float32_solver(method: str):
-    import jax
-
-    import jaxpose as jp
-
     @jax.jit
     def solve(K, obj, img):
-        sol = jp.solve_many(jp.camera_matrix(K), obj, img, method=method)
+        sol = jp.solve_many(jp.geometry.camera_matrix(K), obj, img, method=method)
         return sol.accepted, sol.pose.R, sol.pose.t
 
     return solve
 
 
-def solve_float32(solver, cell: accuracy.Cell, trials: int, chunk: int) -> accuracy.Answers:
-    """The float32 twin of `accuracy.solve_jaxpose`: same padded chunks, float32 arrays."""
-    import jax.numpy as jnp
-
+def solve_float32(solver, cell: protocol.Cell, trials: int, chunk: int) -> protocol.Answers:
+    """The float32 twin of `protocol.solve_jaxpose`: same padded chunks, float32 arrays."""
     R, t, ok = np.tile(np.eye(3), (trials, 1, 1)), np.zeros((trials, 3)), np.zeros(trials, bool)
     K = jnp.asarray(cell.K, jnp.float32)
-    t0 = time.perf_counter()
+    watch = Stopwatch()
     for s in range(0, trials, chunk):
         idx = np.minimum(np.arange(s, s + chunk), trials - 1)
         okb, Rb, tb = solver(
@@ -113,7 +109,7 @@ def solve_float32(solver, cell: accuracy.Cell, trials: int, chunk: int) -> accur
         R[s : s + m] = np.asarray(Rb, np.float64)[:m]
         t[s : s + m] = np.asarray(tb, np.float64)[:m]
         ok[s : s + m] = np.asarray(okb)[:m]
-    return accuracy.Answers(R, t, ok, time.perf_counter() - t0)
+    return protocol.Answers(R, t, ok, watch.seconds)
 
 
 def _stats(x: np.ndarray) -> dict:
@@ -138,7 +134,7 @@ def nearest_rotation(R: np.ndarray) -> np.ndarray:
     return (U * D[..., None, :]) @ Vt
 
 
-def compare(cell: accuracy.Cell, a64: accuracy.Answers, a32: accuracy.Answers) -> dict:
+def compare(cell: protocol.Cell, a64: protocol.Answers, a32: protocol.Answers) -> dict:
     """The per-cell figures of the module docstring (float32 rotations taken to the
     nearest rotation first; their orthonormality defect is reported apart)."""
     B = len(a64.ok)
@@ -146,18 +142,18 @@ def compare(cell: accuracy.Cell, a64: accuracy.Answers, a32: accuracy.Answers) -
     both = a64.ok & a32.ok
     R32 = nearest_rotation(a32.R)
     defect = np.abs(np.swapaxes(a32.R, -1, -2) @ a32.R - np.eye(3)).max(axis=(-2, -1))
-    rms64 = accuracy.reprojection_rms(obj, img, cell.K, a64.R, a64.t)
-    rms32 = accuracy.reprojection_rms(obj, img, cell.K, R32, a32.t)
+    rms64 = protocol.reprojection_rms(obj, img, cell.K, a64.R, a64.t)
+    rms32 = protocol.reprojection_rms(obj, img, cell.K, R32, a32.t)
     R_round = nearest_rotation(a64.R.astype(np.float32))
     t_round = a64.t.astype(np.float32).astype(np.float64)
-    floor = accuracy.reprojection_rms(obj, img, cell.K, R_round, t_round) - rms64
-    rot = accuracy.rotation_angle_deg(R32, a64.R)
+    floor = protocol.reprojection_rms(obj, img, cell.K, R_round, t_round) - rms64
+    rot = protocol.rotation_angle_deg(R32, a64.R)
     norm64 = np.linalg.norm(a64.t, axis=1)
     trel = np.linalg.norm(a32.t - a64.t, axis=1) / np.where(norm64 > 0, norm64, 1.0)
     drms = rms32 - rms64
     at_opt = both & (drms <= RMS_TOL)
-    err64 = accuracy.rotation_error_deg(cell.R[:B], a64.R)
-    err32 = accuracy.rotation_error_deg(cell.R[:B], R32)
+    err64 = protocol.rotation_error_deg(cell.R[:B], a64.R)
+    err32 = protocol.rotation_error_deg(cell.R[:B], R32)
     n64 = max(int(a64.ok.sum()), 1)
     return {
         "kind": cell.kind,
@@ -231,18 +227,6 @@ def p3p_figures(n: int, seed: int) -> dict:
     return out
 
 
-def _versions() -> dict:
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {}
-    for pkg in ("jaxpose", "jax", "jaxlib", "numpy", "optimistix"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:  # pragma: no cover
-            out[pkg] = None
-    return out
-
-
 def run(
     quick: bool,
     out_dir: str | Path | None = None,
@@ -257,40 +241,38 @@ def run(
     verbose: bool = True,
     threads: bool = True,
 ) -> dict:
-    import jax
-
     jax.config.update("jax_enable_x64", True)  # this script's own choice
     per_n = default_trials(quick)
     if p3p_n is None:
         p3p_n = 2000 if quick else 20000
     solver32 = _float32_solver(method)
-    t_start = time.perf_counter()
+    watch = Stopwatch()
     specs = []
     for n in ns:
         B = trials if trials is not None else per_n.get(n, 20)
         for kind in kinds:
             for sigma in sigmas:
-                specs.append((accuracy.make_cell(kind, n, sigma, B, seed), B))
+                specs.append((protocol.make_cell(kind, n, sigma, B, seed), B))
 
     def say(dtype, cell, B):
         if verbose:
             print(
                 f"  {dtype} {cell.kind:>14} n={cell.n:<3} sigma={cell.sigma:<4} trials={B:<4} "
-                f"[{time.perf_counter() - t_start:.0f} s]",
+                f"[{watch.seconds:.0f} s]",
                 flush=True,
             )
 
     def sweep64():
         out = []
         for cell, B in specs:
-            out.append(accuracy.solve_jaxpose(cell, method, B, accuracy.chunk_size(cell.n, method)))
+            out.append(protocol.solve_jaxpose(cell, method, B, protocol.chunk_size(cell.n, method)))
             say("float64", cell, B)
         return out
 
     def sweep32():
         out = []
         for cell, B in specs:
-            out.append(solve_float32(solver32, cell, B, accuracy.chunk_size(cell.n, method)))
+            out.append(solve_float32(solver32, cell, B, protocol.chunk_size(cell.n, method)))
             say("float32", cell, B)
         return out
 
@@ -324,15 +306,12 @@ def run(
         "cells": cells,
         "summary": summary(cells),
         "p3p": p3p_figures(p3p_n, seed) if p3p_n != 0 else None,
-        "seconds": time.perf_counter() - t_start,
-        "machine": accuracy.machine(),
-        "versions": _versions(),
+        "seconds": watch.seconds,
         "quick": quick,
     }
+    result["versions"] = versions()
     out = Path(out_dir) if out_dir is not None else RESULTS
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / ("float32_quick.json" if quick else "float32.json")
-    path.write_text(json.dumps(result, indent=1, allow_nan=True))
+    path = write_json(out / ("float32_quick.json" if quick else "float32.json"), result)
     result["path"] = str(path)
     if verbose:
         print_table(result)
@@ -434,7 +413,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     if args.trials is not None and args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
-    accuracy.enable_compilation_cache()
+    compilation_cache()
     return run(
         args.quick,
         args.out,

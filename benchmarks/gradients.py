@@ -29,45 +29,29 @@ Prints a table and writes JSON to benchmarks/results/gradients.json.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
-import time
+import sys
 from pathlib import Path
 
+if __name__ == "__main__" and not __package__:  # run as `python benchmarks/gradients.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+import jaxpose as jp
+from benchmarks._harness import RESULTS, timeit_many, write_json
 
 
 def problems(batch: int):
     """`batch` default-bench problems, one noise seed each: (cameras, models, images,
     true R, true t), numpy float64."""
-    import jaxpose as jp
-
-    benches = [jp.default_bench(seed=s) for s in range(batch)]
+    benches = [jp.apps.default_bench(seed=s) for s in range(batch)]
     stack = lambda name: np.stack([getattr(b, name) for b in benches])
     return tuple(stack(n) for n in ("camera", "model_points", "image_points", "R", "t"))
-
-
-def _timed_pair(forward, both, args, repeat: int):
-    """First-call (compile and run) times of both functions, then `repeat` interleaved
-    timings `(forward, forward+backward)`, so that a loaded machine slows both alike."""
-    import jax
-
-    first = []
-    for fn in (forward, both):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        first.append(time.perf_counter() - t0)
-    pairs = []
-    for _ in range(repeat):
-        pair = []
-        for fn in (forward, both):
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn(*args))
-            pair.append(time.perf_counter() - t0)
-        pairs.append(pair)
-    return first, np.array(pairs)
 
 
 def main(argv=None) -> dict:
@@ -77,12 +61,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--chunk", type=int, default=64)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
-
-    import jax
-    import jax.numpy as jnp
-
     jax.config.update("jax_enable_x64", True)  # this script's own choice
-    import jaxpose as jp
 
     def loss(camera, model, image, R_true, t_true):
         pose = jp.solve(camera, model, image).pose
@@ -99,12 +78,15 @@ def main(argv=None) -> dict:
     for B in args.batch:
         forward, both = batched(loss, B), batched(value_and_grad, B)
         data = tuple(jnp.asarray(x) for x in problems(B))
-        (c_fwd, c_both), times = _timed_pair(forward, both, data, args.repeat)
-        value, grads = both(*data)
+        # A warm-up call each (the compile; its time kept as first_call_s), then calls
+        # timed alternately: a loaded machine slows both alike.
+        tf, tb = timeit_many((forward, both), *data, warmup=1, repeat=args.repeat)
+        c_fwd, c_both = tf.first, tb.first
+        value, grads = tb.result
         finite = bool(all(np.all(np.isfinite(np.asarray(g))) for g in grads))
-        same = float(np.max(np.abs(np.asarray(value) - np.asarray(forward(*data)))))
-        t_fwd, t_both = times[:, 0].tolist(), times[:, 1].tolist()
-        ratio = float(np.median(times[:, 1] / times[:, 0])) - 1
+        same = float(np.max(np.abs(np.asarray(value) - np.asarray(tf.result))))
+        t_fwd, t_both = list(tf.times), list(tb.times)
+        ratio = float(np.median(np.array(t_both) / np.array(t_fwd))) - 1
         fwd, fb = statistics.median(t_fwd), statistics.median(t_both)
         rows.append(
             {
@@ -144,9 +126,7 @@ def main(argv=None) -> dict:
         "jax": jax.__version__,
         "rows": rows,
     }
-    out = args.out or Path(__file__).parent / "results" / "gradients.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1))
+    out = write_json(args.out or RESULTS / "gradients.json", result)
     print(f"wrote {out}")
     return result
 

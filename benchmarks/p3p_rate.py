@@ -27,17 +27,27 @@ p3p_rate_float32.json (float32; the peers always run in float64).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import time
+import sys
 from pathlib import Path
+
+if __name__ == "__main__" and not __package__:  # run as `python benchmarks/p3p_rate.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
-from jaxpose.apps._bench import random_rotations
+from benchmarks._harness import (
+    K_PIXELS,
+    RESULTS,
+    Stopwatch,
+    random_rotations,
+    rotation_angle,
+    timeit,
+    write_json,
+)
 
-K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+K = K_PIXELS
 WIDTH, HEIGHT = 640, 480
 MIN_AREA = 40.0
 COLLINEAR_TOL = 1e-3
@@ -75,9 +85,7 @@ def draw(n, seed):
 def pose_errors(R_true, t_true, Rs, ts):
     """Rotation angle (rad) and relative translation error of each candidate."""
     Rs, ts = np.asarray(Rs, np.float64), np.asarray(ts, np.float64)
-    # |R1 - R2|_F = 2 sqrt(2) sin(angle / 2): accurate for small angles, unlike acos.
-    frob = np.linalg.norm(Rs - R_true, axis=(-2, -1))
-    angle = 2 * np.arcsin(np.clip(frob / (2 * np.sqrt(2)), 0, 1))
+    angle = rotation_angle(Rs, R_true)
     rel_t = np.linalg.norm(ts - t_true, axis=-1) / np.linalg.norm(t_true)
     return angle, rel_t
 
@@ -113,7 +121,7 @@ def run_jaxpose(data, dtype, repeats, chunk=0):
     import jax
     import jax.numpy as jnp
 
-    from jaxpose import p3p
+    from jaxpose.solvers import p3p
 
     if chunk:
         # The batch as a sequence of vmapped chunks (`lax.map`): each fused kernel then
@@ -128,15 +136,9 @@ def run_jaxpose(data, dtype, repeats, chunk=0):
         fn = jax.jit(jax.vmap(p3p))
     f = jnp.asarray(data["f"], dtype)
     m = jnp.asarray(data["m"], dtype)
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(f, m))
-    first = time.perf_counter() - t0
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(fn(f, m))
-        runs.append(time.perf_counter() - t0)
-    Rs, ts, valid = (np.asarray(x) for x in out)
+    timing = timeit(fn, f, m, warmup=1, repeat=repeats)
+    first, runs = timing.first, list(timing.times)
+    Rs, ts, valid = (np.asarray(x) for x in timing.result)
     angle, rel = pose_errors(data["R"][:, None], data["t"][:, None], Rs, ts)
     angle = np.where(valid, angle, np.inf)
     rel = np.where(valid, rel, np.inf)
@@ -153,10 +155,10 @@ def run_opencv(data):
     m, uv = data["m"], data["uv"]
     n = len(m)
     results = []
-    t0 = time.perf_counter()
+    watch = Stopwatch()
     for i in range(n):
         results.append(cv2.solveP3P(m[i], uv[i], K, None, flags=cv2.SOLVEPNP_P3P))
-    seconds = time.perf_counter() - t0
+    seconds = watch.seconds
     out = np.empty((n, 2)), np.empty(n, int), np.empty(n, int)
     for i, (k, rvecs, tvecs) in enumerate(results):
         cands = [(cv2.Rodrigues(r)[0], tv.ravel()) for r, tv in zip(rvecs[:k], tvecs[:k])]
@@ -174,10 +176,10 @@ def run_poselib(data):
     f, m = data["f"], data["m"]
     n = len(m)
     results = []
-    t0 = time.perf_counter()
+    watch = Stopwatch()
     for i in range(n):
         results.append(poselib.p3p(f[i], m[i]))
-    seconds = time.perf_counter() - t0
+    seconds = watch.seconds
     out = np.empty((n, 2)), np.empty(n, int), np.empty(n, int)
     for i, poses in enumerate(results):
         cands = [(p.R, np.asarray(p.t)) for p in poses]
@@ -267,9 +269,8 @@ def main(argv=None) -> dict:
         "cpu_count": os.cpu_count(),
     }
     default = "p3p_rate.json" if args.dtype == "float64" else "p3p_rate_float32.json"
-    out = Path(args.out) if args.out else Path(__file__).parent / "results" / default
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1))
+    # "machine" holds the platform string (as the notebook reads it), "host" the description.
+    out = write_json(Path(args.out) if args.out else RESULTS / default, result, key="host")
     print(f"wrote {out}")
     return result
 

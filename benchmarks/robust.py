@@ -3,9 +3,9 @@
 For each share of wrong matches (default 0, 10, ..., 50%) and each kind of scene, the
 same problems go to every solver:
 
-- `bench`: the paper's bench (`jaxpose.default_bench(seed)`: 16 matched vertices of the
+- `bench`: the paper's bench (`jaxpose.apps.default_bench(seed)`: 16 matched vertices of the
   cross prism at 2 m, f = 3000 px, noise 0.8 px);
-- `random`: `jaxpose.random_scene(rng, n, noise=1.0, kind="ordinary")` (n = 30 points
+- `random`: `jaxpose.apps.random_scene(rng, n, noise=1.0, kind="ordinary")` (n = 30 points
   in [-2,2]x[-2,2]x[4,8], f = 800 px, OpenCV's camera frame).
 
 Wrong matches: `round(share * n)` matches, chosen at random, each given the pixel of
@@ -37,16 +37,22 @@ Prints a table per scene kind and writes benchmarks/results/robust.json.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import time
+import sys
 from pathlib import Path
 
+if __name__ == "__main__" and not __package__:  # run as `python benchmarks/robust.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 import cv2
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 import jaxpose as jp
+from benchmarks._harness import RESULTS, rich_console, rotation_angle, timeit, versions, write_json
+from jaxpose.solvers import Status
 
 FRACTIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 SOLVERS = ("jaxpose", "cv2", "cv2_1000", "poselib")
@@ -78,12 +84,12 @@ def make_problems(kind, share, trials, seed, n_random):
     for i in range(trials):
         rng = np.random.default_rng([seed, int(1000 * share), i, 0 if kind == "bench" else 1])
         if kind == "bench":
-            b = jp.default_bench(seed=seed * 100_000 + i)
+            b = jp.apps.default_bench(seed=seed * 100_000 + i)
             obj, img, K, camera = b.model_points, b.image_points, b.K, b.camera
             R_true, t_true = b.R_wc @ b.R, b.R_wc @ b.t + b.t_wc
             to_camera = (b.R_wc, b.t_wc)
         else:
-            s = jp.random_scene(rng, n_random, noise=1.0, kind="ordinary", world_camera=False)
+            s = jp.apps.random_scene(rng, n_random, noise=1.0, kind="ordinary", world_camera=False)
             obj, img, K, camera = s.model_points, s.image_points, s.camera[:, :3], s.camera
             R_true, t_true = s.R, s.t
             to_camera = (np.eye(3), np.zeros(3))
@@ -110,7 +116,7 @@ def make_problems(kind, share, trials, seed, n_random):
 def pose_error(R, t, reference):
     """Rotation angle (degrees) and translation error relative to |t_ref|."""
     R_ref, t_ref = reference
-    angle = 2 * np.degrees(np.arcsin(min(np.linalg.norm(R - R_ref) / (2 * np.sqrt(2)), 1.0)))
+    angle = float(np.degrees(rotation_angle(R, R_ref)))
     return angle, float(np.linalg.norm(t - t_ref) / np.linalg.norm(t_ref))
 
 
@@ -118,9 +124,6 @@ def pose_error(R, t, reference):
 
 
 def run_jaxpose(problems, threshold, chunk, funcs):
-    import jax
-    import jax.numpy as jnp
-
     batched, single = funcs
     obj = np.stack([p["obj"] for p in problems])
     img = np.stack([p["img"] for p in problems])
@@ -146,36 +149,28 @@ def run_jaxpose(problems, threshold, chunk, funcs):
         outs = jax.block_until_ready(outs)
         return jax.tree.map(lambda *x: np.concatenate(x)[:B], *outs)
 
-    batches()  # compile / warm up
-    times = []
-    for _ in range(3):
-        t0 = time.perf_counter()
-        out = batches()
-        times.append(time.perf_counter() - t0)
-    # Python loop of single compiled calls.
+    timing = timeit(batches, warmup=1, repeat=3)  # the warm-up call compiles
+    out = timing.result
+    # Python loop of single compiled calls (the first one compiles: the median ignores it).
     single_times = []
     for p in problems:
         args = (jnp.asarray(p["camera"]), jnp.asarray(p["obj"]), jnp.asarray(p["img"]))
-        t0 = time.perf_counter()
-        jax.block_until_ready(single(*args, threshold))
-        single_times.append(time.perf_counter() - t0)
+        single_times.append(timeit(single, *args, threshold, warmup=0, repeat=1).best)
     results = []
     for i, p in enumerate(problems):
         R_wc, t_wc = p["to_camera"]
         R = R_wc @ out.pose.R[i]
         t = R_wc @ out.pose.t[i] + t_wc
-        results.append((bool(out.status[i] == jp.Status.OK), R, t, np.asarray(out.inliers[i])))
+        results.append((bool(out.status[i] == Status.OK), R, t, np.asarray(out.inliers[i])))
     return results, {
-        "per_problem_batched_s": min(times) / B,
+        "per_problem_batched_s": timing.best / B,
         "per_call_s_median": float(np.median(single_times)),
     }
 
 
 def run_cv2(problems, threshold, iterations, confidence):
-    results, times = [], []
-    for p in problems:
-        t0 = time.perf_counter()
-        ok, rv, tv, inl = cv2.solvePnPRansac(
+    def ransac(p):
+        return cv2.solvePnPRansac(
             p["obj"],
             p["img"],
             p["K"],
@@ -184,7 +179,12 @@ def run_cv2(problems, threshold, iterations, confidence):
             reprojectionError=threshold,
             confidence=confidence,
         )
-        times.append(time.perf_counter() - t0)
+
+    results, times = [], []
+    for p in problems:
+        call = timeit(ransac, p, warmup=0, repeat=1, block=False)
+        times.append(call.best)
+        ok, rv, tv, inl = call.result
         mask = np.zeros(len(p["obj"]), bool)
         if ok and inl is not None:
             mask[inl.ravel()] = True
@@ -206,11 +206,19 @@ def run_poselib(problems, threshold):
             "height": int(2 * K[1, 2]),
             "params": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]],
         }
-        t0 = time.perf_counter()
-        pose, info = poselib.estimate_absolute_pose(
-            p["img"], p["obj"], camera, {"max_reproj_error": threshold}, {}
+        call = timeit(
+            poselib.estimate_absolute_pose,
+            p["img"],
+            p["obj"],
+            camera,
+            {"max_reproj_error": threshold},
+            {},
+            warmup=0,
+            repeat=1,
+            block=False,
         )
-        times.append(time.perf_counter() - t0)
+        times.append(call.best)
+        pose, info = call.result
         mask = np.asarray(info["inliers"], bool)
         ok = info["num_inliers"] >= 4
         results.append((ok, np.asarray(pose.R), np.asarray(pose.t), mask))
@@ -240,10 +248,8 @@ def summarise(problems, results):
 
 
 def _jax_functions():
-    import jax
-
     def one(camera, obj, img, threshold):
-        return jp.robust(camera, obj, img, inlier_threshold=threshold)
+        return jp.strategy.robust(camera, obj, img, inlier_threshold=threshold)
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None))), jax.jit(one)
 
@@ -262,13 +268,10 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     trials = 20 if args.quick else args.trials
 
-    import jax
-
     jax.config.update("jax_enable_x64", True)  # this script's own choice
-    from rich.console import Console
     from rich.table import Table
 
-    console = Console(width=None if os.isatty(1) else 120)
+    console = rich_console(120)
     funcs = _jax_functions()
     cells = {}
     for kind in args.kinds:
@@ -319,25 +322,14 @@ def main(argv=None) -> dict:
     result = {
         "args": vars(args) | {"trials": trials},
         "cells": cells,
-        "versions": {
-            "jax": jax.__version__,
-            "opencv": cv2.__version__,
-            "poselib": _version("poselib"),
-        },
+        "versions": versions(),
         "machine": platform.platform(),
         "cpu_count": os.cpu_count(),
     }
-    out = Path(args.out) if args.out else Path(__file__).parent / "results" / "robust.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1))
+    # "machine" holds the platform string (as the notebook reads it), "host" the description.
+    out = write_json(Path(args.out) if args.out else RESULTS / "robust.json", result, key="host")
     console.print(f"wrote {out}")
     return result
-
-
-def _version(name):
-    from importlib.metadata import version
-
-    return version(name)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ peak memory and compile time versus n and batch size).
     python benchmarks/run.py            # full (what the README's tables come from)
     python benchmarks/run.py --quick    # a few minutes
     python benchmarks/run.py --only speed
-    python benchmarks/run.py --only scale
+    python -m benchmarks.run --only scale
 
 Prints the tables (with the targets and the ratio to each), writes
 `benchmarks/results/speed.json` (and the accuracy module's JSON and plots),
@@ -16,58 +16,22 @@ Prints the tables (with the targets and the ratio to each), writes
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 from pathlib import Path
 
+if __name__ == "__main__" and not __package__:  # run as `python benchmarks/run.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 import jax
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
-
-def machine() -> dict:
-    import cv2
-    import numpy as np
-
-    import jaxpose
-
-    try:
-        import poselib
-
-        poselib_version = getattr(poselib, "__version__", "installed")
-    except ImportError:  # pragma: no cover
-        poselib_version = None
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:  # pragma: no cover
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "devices": [str(d) for d in jax.devices()],
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "jaxpose": jaxpose.__version__,
-        "numpy": np.__version__,
-        "opencv": cv2.__version__,
-        "poselib": poselib_version,
-        "load_average": list(os.getloadavg()),
-    }
-
-
-def _status(value: float, target: float, higher_is_better: bool) -> str:
-    met = value >= target if higher_is_better else value <= target
-    if met:
-        return "met"
-    factor = target / value if higher_is_better else value / target
-    return f"missed by {factor:.1f}x"
+from benchmarks._harness import (
+    RESULTS,
+    against,
+    machine,
+    rich_console,
+    times_faster,
+    write_json,
+)
 
 
 def print_speed(res: dict, console) -> None:
@@ -75,6 +39,8 @@ def print_speed(res: dict, console) -> None:
 
     T = res["targets"]
     p = res["paper"]
+    lo = {"higher_is_better": False}
+    hi = {"higher_is_better": True}
     t = Table(title=f"Paper protocol: all {p['triplets']} triplets of the default bench")
     for col in ("solver", "time", "jaxpose is", "target"):
         t.add_column(col, justify="right" if col != "solver" else "left")
@@ -82,19 +48,19 @@ def print_speed(res: dict, console) -> None:
         "jaxpose mixed (compiled call)",
         f"{p['jaxpose_ms']:.2f} ms",
         "",
-        f"<= {T['paper_ms']:g} ms: {_status(p['jaxpose_ms'], T['paper_ms'], False)}",
+        against(p["jaxpose_ms"], T["paper_ms"], **lo, unit=" ms"),
     )
     t.add_row(
         "OpenCV loop (solveP3P, best root, RefineLM)",
         f"{p['opencv_ms']:.1f} ms",
-        f"{p['vs_opencv']:.1f}x faster",
-        f">= {T['paper_vs_opencv']:g}x: {_status(p['vs_opencv'], T['paper_vs_opencv'], True)}",
+        times_faster(p["vs_opencv"]),
+        against(p["vs_opencv"], T["paper_vs_opencv"], **hi, unit="x"),
     )
     t.add_row(
         "PoseLib loop (p3p, best root, refine)",
         f"{p['poselib_ms']:.1f} ms",
-        f"{p['vs_poselib']:.1f}x faster",
-        f">= {T['paper_vs_poselib']:g}x: {_status(p['vs_poselib'], T['paper_vs_poselib'], True)}",
+        times_faster(p["vs_poselib"]),
+        against(p["vs_poselib"], T["paper_vs_poselib"], **hi, unit="x"),
     )
     console.print(t)
     ph = res.get("paper_phases")
@@ -106,14 +72,13 @@ def print_speed(res: dict, console) -> None:
             f"{ph['mixed_ms']:.2f}; solve (mixed + polish) {ph['solve_ms']:.2f}"
         )
     console.print(
-        f"compile (cold, first call): {p['compile_s']:.1f} s (target <= {T['compile_s']:g} s: "
-        f"{_status(p['compile_s'], T['compile_s'], False)})"
+        f"compile (cold, first call): {p['compile_s']:.1f} s "
+        f"(target {against(p['compile_s'], T['compile_s'], **lo, unit=' s')})"
     )
     lat = res["latency"]
     console.print(
         f"single call solve_pnp (bench, exhaustive mixed): {lat['solve_pnp_ms']:.2f} ms "
-        f"(target <= {T['latency_ms']:g} ms: "
-        f"{_status(lat['solve_pnp_ms'], T['latency_ms'], False)}); "
+        f"(target {against(lat['solve_pnp_ms'], T['latency_ms'], **lo, unit=' ms')}); "
         f"with triplet_budget=8: {lat['solve_pnp_budget8_ms']:.2f} ms; "
         f"cv2.solvePnP(SQPNP): {lat['cv2_sqpnp_us']:.0f} us"
     )
@@ -126,7 +91,7 @@ def print_speed(res: dict, console) -> None:
             f"{1e3 * row['jaxpose_s']:.1f} ms",
             f"{row['per_problem_us']:.0f} us",
             f"{1e3 * row['opencv_s']:.1f} ms",
-            f"{row['vs_opencv']:.2f}x faster",
+            times_faster(row["vs_opencv"], 2),
             f"{100 * row['at_optimum']:.2f}%",
         )
     console.print(b)
@@ -134,8 +99,7 @@ def print_speed(res: dict, console) -> None:
     la = res["linalg"]
     console.print(
         f"P3P alone: {q['ns_per_triplet']:.0f} ns per triplet amortised over {q['triplets']} "
-        f"(target <= {T['p3p_ns_per_triplet']:g} ns: "
-        f"{_status(q['ns_per_triplet'], T['p3p_ns_per_triplet'], False)}). "
+        f"(target {against(q['ns_per_triplet'], T['p3p_ns_per_triplet'], **lo, unit=' ns')}). "
         f"6x6 normal equations: LAPACK {la['lapack_us_per_system']:.2f} us, unrolled "
         f"Cholesky {la['unrolled_us_per_system']:.3f} us per system ({la['ratio']:.0f}x)."
     )
@@ -166,35 +130,28 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats, smaller batches")
     parser.add_argument("--only", choices=("speed", "accuracy", "scale"), default=None)
-    parser.add_argument("--out", default=str(HERE / "results"))
+    parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    from rich.console import Console
+    from benchmarks import accuracy, scale, speed
 
-    console = Console(width=None if sys.stdout.isatty() else 120)
+    console = rich_console(120)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     info = machine()
     console.print(f"machine: {info['cpu']}, {info['cores']} cores, devices {info['devices']}")
     if args.only in (None, "speed"):
-        import speed
-
         with console.status("speed: compiling and timing..."):
             res = speed.run(quick=args.quick)
         res["machine"] = info
         res["quick"] = args.quick
-        name = "speed_quick.json" if args.quick else "speed.json"
-        (out / name).write_text(json.dumps(res, indent=2))
+        path = write_json(out / ("speed_quick.json" if args.quick else "speed.json"), res, indent=2)
         print_speed(res, console)
         plot_batch(res, out / ("batch_quick.png" if args.quick else "batch.png"))
-        console.print(f"wrote {out / name}")
+        console.print(f"wrote {path}")
     if args.only in (None, "accuracy"):
-        import accuracy
-
         accuracy.run(quick=args.quick, out_dir=out)
     if args.only in (None, "scale"):
-        import scale
-
         # (Its measurements run in fresh worker processes: cold compiles, clean peak RSS.)
         scale.run(quick=args.quick, out_dir=out, console=console)
     return 0

@@ -1,4 +1,4 @@
-"""Speed of jaxpose beside OpenCV and PoseLib, timed in the same run (issue: benchmark).
+"""Speed of jaxpose beside OpenCV and PoseLib, timed in the same run.
 
 Sections (each reports times and ratios; targets in `TARGETS`):
 
@@ -20,14 +20,20 @@ the compile time is reported apart. Run through `benchmarks/run.py`.
 
 from __future__ import annotations
 
-import time
-
 import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxpose as jp
+from benchmarks._harness import (
+    K_PIXELS,
+    batch_problems,
+    bench_problem,
+    opencv_block,
+    random_rotations,
+    timeit,
+)
 
 TARGETS = {
     "paper_ms": 3.0,
@@ -41,25 +47,10 @@ TARGETS = {
 }
 
 
-def _best(fn, repeat: int) -> float:
-    """Minimum wall time of `fn()` over `repeat` calls (seconds)."""
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.min(times))
-
-
-def _compile_and_time(fn, args, repeat: int) -> tuple[float, float]:
-    """(first call, compile included; best of `repeat` compiled calls after three
-    warm-up calls: the first few calls after a compile run up to 1.5x slower)."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    for _ in range(3):
-        jax.block_until_ready(fn(*args))
-    return first, _best(lambda: jax.block_until_ready(fn(*args)), repeat)
+# Untimed calls before a compiled function is timed: the first (compile included, its
+# time reported) and three more (the first few calls after a compile run up to 1.5x
+# slower).
+WARMUP = 4
 
 
 def _rms(obj, img, K, rvec, tvec) -> float:
@@ -68,15 +59,14 @@ def _rms(obj, img, K, rvec, tvec) -> float:
 
 
 def paper(repeat: int) -> dict:
-    bench = jp.default_bench(seed=0)
-    C, M, I = (jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points))
+    bench, (C, M, I) = bench_problem(seed=0)
     f = jax.jit(lambda C, M, I: jp.solve(C, M, I, method="mixed"))
-    compile_s, ours = _compile_and_time(f, (C, M, I), repeat)
+    ours = timeit(f, C, M, I, warmup=WARMUP, repeat=repeat)
     K = bench.K
     # The OpenCV / PoseLib convention: points in the camera frame of the bench.
     cam_model = np.asarray(bench.model_points)
     img = np.asarray(bench.image_points)
-    trip = jp.triplet_indices(len(cam_model))
+    trip = jp.strategy.triplet_indices(len(cam_model))
 
     def opencv_loop():
         best = None
@@ -121,16 +111,16 @@ def paper(repeat: int) -> dict:
         return best
 
     loops = max(1, repeat // 10)
-    cv = _best(opencv_loop, loops)
-    pl = _best(poselib_loop, loops)
+    cv = timeit(opencv_loop, warmup=0, repeat=loops, block=False).best
+    pl = timeit(poselib_loop, warmup=0, repeat=loops, block=False).best
     return {
         "triplets": int(len(trip)),
-        "jaxpose_ms": 1e3 * ours,
-        "compile_s": compile_s,
+        "jaxpose_ms": 1e3 * ours.best,
+        "compile_s": ours.first,
         "opencv_ms": 1e3 * cv,
         "poselib_ms": 1e3 * pl,
-        "vs_opencv": cv / ours,
-        "vs_poselib": pl / ours,
+        "vs_opencv": cv / ours.best,
+        "vs_poselib": pl / ours.best,
     }
 
 
@@ -140,81 +130,87 @@ def paper_phases(repeat: int) -> dict:
     matches); step 2 (the linear method from every triplet's pose); the mixed algorithm
     (steps 1-4 and the retries); `solve` (the mixed algorithm, the answer's polish and
     its derivative)."""
-    from jaxpose.strategy._mixed import initial_poses, mixed
-
-    bench = jp.default_bench(seed=0)
-    C, M, I = (jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points))
-    obs = jp.observations(C, M, I)
-    trip = jnp.asarray(jp.triplet_indices(M.shape[0]))
+    initial_poses, mixed = jp.strategy.initial_poses, jp.strategy.mixed
+    _, (C, M, I) = bench_problem(seed=0)
+    obs = jp.geometry.observations(C, M, I)
+    trip = jnp.asarray(jp.strategy.triplet_indices(M.shape[0]))
     start = jax.jit(initial_poses)(obs).pose
 
     def roots(o):
-        return jax.vmap(lambda ijk: jp.three_point(o.camera, o.model[ijk], o.image[ijk]))(trip)
+        three_point = jp.solvers.three_point
+        return jax.vmap(lambda ijk: three_point(o.camera, o.model[ijk], o.image[ijk]))(trip)
+
+    def step2(o, p):
+        return jax.vmap(lambda q: jp.solvers.linear(o, q))(p)
 
     phases = {
         "three_point_ms": (roots, (obs,)),
         "step1_ms": (initial_poses, (obs,)),
-        "step2_linear_ms": (lambda o, p: jax.vmap(lambda q: jp.linear(o, q))(p), (obs, start)),
+        "step2_linear_ms": (step2, (obs, start)),
         "mixed_ms": (mixed, (obs,)),
         "solve_ms": (jp.solve, (C, M, I)),
     }
     out = {"triplets": int(trip.shape[0])}
     for name, (fn, args) in phases.items():
-        out[name] = 1e3 * _compile_and_time(jax.jit(fn), args, repeat)[1]
+        out[name] = 1e3 * timeit(jax.jit(fn), *args, warmup=WARMUP, repeat=repeat).best
     return out
 
 
 def latency(repeat: int) -> dict:
-    bench = jp.default_bench(seed=0)
+    bench = jp.apps.default_bench(seed=0)
     obj, img, K = bench.model_points, bench.image_points, bench.K
     # The bench's model frame is not the camera frame: solve_pnp returns model->camera.
-    jp.solve_pnp(obj, img, K)
-    ours = _best(lambda: jp.solve_pnp(obj, img, K), repeat)
-    jp.solve_pnp(obj, img, K, triplet_budget=8)
-    budget = _best(lambda: jp.solve_pnp(obj, img, K, triplet_budget=8), repeat)
-    sq = _best(lambda: cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP), max(repeat, 50))
+    ours = timeit(jp.solve_pnp, obj, img, K, repeat=repeat)
+    budget = timeit(lambda: jp.solve_pnp(obj, img, K, triplet_budget=8), repeat=repeat)
+    sq = timeit(
+        lambda: cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP),
+        warmup=0,
+        repeat=max(repeat, 50),
+        block=False,
+    )
     return {
-        "solve_pnp_ms": 1e3 * ours,
-        "solve_pnp_budget8_ms": 1e3 * budget,
-        "cv2_sqpnp_us": 1e6 * sq,
+        "solve_pnp_ms": 1e3 * ours.best,
+        "solve_pnp_budget8_ms": 1e3 * budget.best,
+        "cv2_sqpnp_us": 1e6 * sq.best,
     }
 
 
 def batch(sizes: list[int], repeat: int, budget: int = 8, seed: int = 1) -> list[dict]:
-    rng = np.random.default_rng(seed)
-    K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
+    K = K_PIXELS
     largest = max(sizes)
-    scenes = [jp.random_scene(rng, 16, noise=1.0, world_camera=False) for _ in range(largest)]
-    obj_all = np.stack([s.model_points for s in scenes])
-    img_all = np.stack([s.image_points for s in scenes])
+    obj_all, img_all = batch_problems(largest, 16, seed=seed, pool=largest)
     ref = np.empty(largest)
     for i in range(largest):
         _, rv, tv = cv2.solvePnP(obj_all[i], img_all[i], K, None, flags=cv2.SOLVEPNP_SQPNP)
         rv, tv = cv2.solvePnPRefineLM(obj_all[i], img_all[i], K, None, rv, tv)
         ref[i] = _rms(obj_all[i], img_all[i], K, rv, tv)
 
-    # OpenCV per-problem time: the best of several loops over 100 problems, so that it is
-    # measured like jaxpose's (best of repeated calls; one long loop on a loaded machine
-    # absorbs every stall).
-    def opencv_block(start: int, count: int = 100):
-        for i in range(start, start + count):
-            _, rv, tv = cv2.solvePnP(obj_all[i], img_all[i], K, None, flags=cv2.SOLVEPNP_SQPNP)
-            cv2.solvePnPRefineLM(obj_all[i], img_all[i], K, None, rv, tv)
-
+    # OpenCV per-problem time: the best of loops over 100 problems (each block of the
+    # batch once, then the first block again), so that it is measured like jaxpose's
+    # (best of repeated calls; one long loop on a loaded machine absorbs every stall).
     count = min(100, largest)
-    per_cv = min(
-        _best(lambda s=s: opencv_block(s, count), 1) for s in range(0, largest - count + 1, count)
+    starts = range(0, largest - count + 1, count)
+    each = iter(starts)
+    blocks = timeit(
+        lambda: opencv_block(obj_all, img_all, K, next(each), count),
+        warmup=0,
+        repeat=len(starts),
+        block=False,
     )
-    per_cv = min(per_cv, _best(lambda: opencv_block(0, count), max(repeat, 5))) / count
+    again = timeit(
+        opencv_block, obj_all, img_all, K, 0, count, warmup=0, repeat=max(repeat, 5), block=False
+    )
+    per_cv = min(blocks.best, again.best) / count
     rows = []
     for B in sizes:
         obj, img = obj_all[:B], img_all[:B]
-        t0 = time.perf_counter()
-        jp.solve_pnp_batch(obj, img, K, triplet_budget=budget)
-        first = time.perf_counter() - t0
         reps = repeat if B <= 1000 else 2
-        ours = _best(lambda: jp.solve_pnp_batch(obj, img, K, triplet_budget=budget), reps)  # noqa: B023
-        ok, rvecs, tvecs = jp.solve_pnp_batch(obj, img, K, triplet_budget=budget)
+        call = timeit(
+            lambda: jp.solve_pnp_batch(obj, img, K, triplet_budget=budget),
+            repeat=reps,
+        )
+        ours, first = call.best, call.first
+        ok, rvecs, tvecs = call.result
         err = np.array([_rms(obj[i], img[i], K, rvecs[i], tvecs[i]) for i in range(B)])
         at = np.abs(err - ref[:B]) <= 1e-6 + 1e-9 * ref[:B]
         rows.append(
@@ -234,18 +230,17 @@ def batch(sizes: list[int], repeat: int, budget: int = 8, seed: int = 1) -> list
 
 def p3p(count: int, repeat: int, seed: int = 2) -> dict:
     rng = np.random.default_rng(seed)
-    R = jp.apps._bench.random_rotations(rng, count)
+    R = random_rotations(rng, count)
     X = rng.uniform(-2, 2, size=(count, 3, 3))
     t = np.column_stack([rng.uniform(-1, 1, (count, 2)), rng.uniform(4, 8, count)])
     P = np.einsum("bij,bkj->bki", R, X) + t[:, None, :]
     f = P / np.linalg.norm(P, axis=2, keepdims=True)
 
     def run(f, X):
-        return jax.lax.map(lambda a: jp.p3p(a[0], a[1])[2], (f, X), batch_size=512)
+        return jax.lax.map(lambda a: jp.solvers.p3p(a[0], a[1])[2], (f, X), batch_size=512)
 
-    g = jax.jit(run)
-    first, best = _compile_and_time(g, (jnp.asarray(f), jnp.asarray(X)), repeat)
-    return {"triplets": count, "ns_per_triplet": 1e9 * best / count, "compile_s": first}
+    t = timeit(jax.jit(run), jnp.asarray(f), jnp.asarray(X), warmup=WARMUP, repeat=repeat)
+    return {"triplets": count, "ns_per_triplet": 1e9 * t.best / count, "compile_s": t.first}
 
 
 def linalg(count: int, repeat: int) -> dict:
@@ -257,8 +252,8 @@ def linalg(count: int, repeat: int) -> dict:
     b = jnp.asarray(rng.normal(size=(count, 6)))
     lapack = jax.jit(lambda M, b: jnp.linalg.solve(M, b[..., None])[..., 0])
     ours = jax.jit(jax.vmap(cholesky_solve))
-    _, t_lapack = _compile_and_time(lapack, (M, b), repeat)
-    _, t_ours = _compile_and_time(ours, (M, b), repeat)
+    t_lapack = timeit(lapack, M, b, warmup=WARMUP, repeat=repeat).best
+    t_ours = timeit(ours, M, b, warmup=WARMUP, repeat=repeat).best
     return {
         "systems": count,
         "lapack_us_per_system": 1e6 * t_lapack / count,

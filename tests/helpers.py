@@ -2,30 +2,11 @@
 
 from __future__ import annotations
 
-import contextlib
-import importlib.util
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
-
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
-
-
-@contextlib.contextmanager
-def benchmark_module(name: str):
-    """`benchmarks/<name>.py` imported as the module `<name>_benchmark` (the scripts are
-    not a package), removed from `sys.modules` afterwards."""
-    spec = importlib.util.spec_from_file_location(f"{name}_benchmark", BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    try:
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.modules.pop(spec.name, None)
 
 
 def verify_recording(path) -> None:

@@ -8,34 +8,29 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import benchmark_module
+
+from benchmarks import _protocol as protocol
+from benchmarks import float32 as bench
 
 STATS = {"median", "p99", "max"}
-
-
-@pytest.fixture(scope="module")
-def bench():
-    with benchmark_module("float32") as module:
-        yield module
 
 
 def _finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
-def test_compare_figures(bench):
-    acc = bench.accuracy
-    cell = acc.make_cell("ordinary", 6, 0.0, 4)  # noise-free: the true pose is optimal
+def test_compare_figures():
+    cell = protocol.make_cell("ordinary", 6, 0.0, 4)  # noise-free: the true pose is optimal
     R, t = cell.R.copy(), cell.t.copy()
     ok = np.ones(4, bool)
-    a64 = acc.Answers(R, t, ok, 1.0)
+    a64 = protocol.Answers(R, t, ok, 1.0)
     # trial 0 identical, trial 1 rotated by 0.01 deg about z, trial 2 failed in float32,
     # trial 3 failed in float64 only
     c, s = np.cos(np.radians(0.01)), np.sin(np.radians(0.01))
     R32 = R.copy()
     R32[1] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ R[1]
     ok32 = np.array([True, True, False, True])
-    a32 = acc.Answers(R32, t.copy(), ok32, 1.0)
+    a32 = protocol.Answers(R32, t.copy(), ok32, 1.0)
     a64.ok = np.array([True, True, True, False])
     row = bench.compare(cell, a64, a32)
     assert row["rotation_diff_deg"]["max"] == pytest.approx(0.01, rel=1e-6)
@@ -49,7 +44,7 @@ def test_compare_figures(bench):
     assert 0 <= row["rounding_floor_px"]["max"] < 1e-3
 
 
-def test_tiny_run(bench, tmp_path):
+def test_tiny_run(tmp_path):
     res = bench.run(
         True,
         tmp_path,

@@ -4,21 +4,14 @@ plot and the sanity of every figure (positive, finite), without worker processes
 import json
 import math
 
-import pytest
-from helpers import benchmark_module
-
-
-@pytest.fixture(scope="module")
-def scale():
-    with benchmark_module("scale") as module:
-        yield module
+from benchmarks import scale
 
 
 def _positive(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
 
 
-def test_strategies_and_switch(scale):
+def test_strategies_and_switch():
     # Below 2000 triplets the sample is the exhaustive set; above, both are measured.
     assert [c["strategy"] for c in scale._strategies(16, 10**6)] == ["exhaustive", "budget8"]
     assert [c["strategy"] for c in scale._strategies(50, 10**6)] == [
@@ -40,7 +33,7 @@ def test_strategies_and_switch(scale):
     assert sw["library_switch_n"] == 24 and sw["exhaustive_stops_paying_n"] == 50
 
 
-def test_tiny_run(scale, tmp_path):
+def test_tiny_run(tmp_path):
     # One compiled program per section (three_point compiles fastest): n = 4, and batches
     # of 2 (one call) and 4 (two chunks of 2, the same program).
     res = scale.main(

@@ -6,20 +6,12 @@ stand-in figures here: `make bench` runs them)."""
 import io
 import math
 
-import pytest
-from helpers import benchmark_module
+from rich.console import Console
+
+from benchmarks import run, speed
 
 
-@pytest.fixture(scope="module")
-def modules():
-    with benchmark_module("speed") as speed, benchmark_module("run") as run:
-        yield speed, run
-
-
-def test_cheap_sections_and_the_table(modules):
-    from rich.console import Console
-
-    speed, run = modules
+def test_cheap_sections_and_the_table():
     q = speed.p3p(256, 2)
     la = speed.linalg(64, 2)
     assert q["triplets"] == 256 and math.isfinite(q["ns_per_triplet"]) and q["ns_per_triplet"] > 0
