@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 
 import jaxpose as jp
+from jaxpose.apps import CalibrationStatus
 from jaxpose.apps._bench import random_rotation
 from jaxpose.apps._calibration import (
     _calibrate_jit,
@@ -20,7 +21,6 @@ from jaxpose.apps._calibration import (
     simulate_led_pairs,
 )
 from jaxpose.apps._robot import default_robot, forward_kinematics
-from jaxpose.solvers._status import Status
 
 BENCH = jp.default_bench()
 ROBOT = default_robot()
@@ -74,7 +74,7 @@ def test_dlt_recovers_the_camera_from_noise_free_pairs(seed, n):
     X = points_in_front(rng, R, centre, n)
     mask = np.arange(N) < n
     out = dlt_jit(pad(X), pad(project(C, X)), mask)
-    assert int(out.status) == Status.OK
+    assert int(out.status) == CalibrationStatus.OK
     # Up to scale (the returned camera is normalised): 1e-8 relative to its largest entry.
     Cn = normalised(C)
     np.testing.assert_allclose(out.camera, Cn, atol=1e-8 * np.abs(Cn).max())
@@ -85,7 +85,7 @@ def test_calibrate_noise_free_from_the_robot():
     pairs = simulate_led_pairs(ROBOT, BENCH.camera, led_joint_grid(ROBOT), image_size=(768, 576))
     assert pairs.visible.sum() >= 30
     out = calibrate_jit(pairs.points, pairs.pixels, pairs.visible)
-    assert int(out.status) == Status.OK
+    assert int(out.status) == CalibrationStatus.OK
     Cn = normalised(BENCH.camera)
     np.testing.assert_allclose(out.camera, Cn, atol=1e-8 * np.abs(Cn).max())
     assert float(out.error) < 1e-8
@@ -107,10 +107,10 @@ def test_degenerate_layouts_are_reported():
     nearly = flat + 1e-4 * rng.normal(size=flat.shape)  # 0.1 micrometre in 300 mm
     line = X[0] + np.outer(np.linspace(-1, 1, N), [100.0, 50.0, 20.0])
     cases = {
-        "coplanar": (flat, np.ones(N, bool), Status.COPLANAR_POINTS),
-        "nearly coplanar": (nearly, np.ones(N, bool), Status.COPLANAR_POINTS),
-        "collinear": (line, np.ones(N, bool), Status.DEGENERATE_MODEL),
-        "five points": (X, np.arange(N) < 5, Status.TOO_FEW_POINTS),
+        "coplanar": (flat, np.ones(N, bool), CalibrationStatus.COPLANAR_POINTS),
+        "nearly coplanar": (nearly, np.ones(N, bool), CalibrationStatus.COPLANAR_POINTS),
+        "collinear": (line, np.ones(N, bool), CalibrationStatus.DEGENERATE_MODEL),
+        "five points": (X, np.arange(N) < 5, CalibrationStatus.TOO_FEW_POINTS),
     }
     for name, (P, mask, expected) in cases.items():
         uv = project(C, P) + rng.normal(scale=0.3, size=(N, 2))
@@ -121,9 +121,9 @@ def test_degenerate_layouts_are_reported():
     bad = X.copy()
     bad[3, 1] = np.nan
     out = calibrate_jit(bad, project(C, X), np.ones(N, bool))
-    assert int(out.status) == Status.NOT_FINITE
+    assert int(out.status) == CalibrationStatus.NOT_FINITE
     assert all(np.all(np.isfinite(x)) for x in out)
-    assert "coplanar" in Status.COPLANAR_POINTS.message
+    assert "coplanar" in CalibrationStatus.COPLANAR_POINTS.message
 
 
 def test_coplanar_estimate_would_be_wrong():
@@ -135,7 +135,7 @@ def test_coplanar_estimate_would_be_wrong():
     n = np.array([0.0, 0.0, 1.0])
     flat = X - np.outer((X - X.mean(0)) @ n, n)
     out = dlt_jit(flat, project(C, flat), np.ones(N, bool))
-    assert int(out.status) == Status.COPLANAR_POINTS
+    assert int(out.status) == CalibrationStatus.COPLANAR_POINTS
     off = points_in_front(rng, R, centre, 20)
     err = np.abs(project(np.asarray(out.camera), off) - project(C, off)).max()
     assert err > 1.0
@@ -150,7 +150,7 @@ def test_undetermined_camera():
     n = np.array([0.0, 0.0, 1.0])
     X[:5] -= np.outer((X[:5] - X[:5].mean(0)) @ n, n)  # five on a plane, one off it
     out = dlt_jit(pad(X), pad(project(C, X)), np.arange(N) < 6)
-    assert int(out.status) == Status.UNDETERMINED_CAMERA
+    assert int(out.status) == CalibrationStatus.UNDETERMINED_CAMERA
 
 
 # --------------------------------------------------------------------------- with noise
@@ -165,7 +165,7 @@ def test_mask_ignores_padding():
     garbage_uv = np.concatenate([uv, rng.normal(scale=1e4, size=(N - 30, 2))])
     a = calibrate_jit(garbage_X, garbage_uv, np.arange(N) < 30)
     b = calibrate_jit(pad(X), pad(uv), np.arange(N) < 30)
-    assert int(a.status) == int(b.status) == Status.OK
+    assert int(a.status) == int(b.status) == CalibrationStatus.OK
     np.testing.assert_allclose(a.camera, b.camera, atol=1e-9 * np.abs(b.camera).max())
 
 
@@ -199,7 +199,7 @@ def test_agrees_with_opencv_on_the_robot_pairs(seed):
     cal, pairs = calibrate_with_robot(
         ROBOT, BENCH.camera, noise=0.5, seed=seed, image_size=BENCH.image_size
     )
-    assert int(cal.status) == Status.OK
+    assert int(cal.status) == CalibrationStatus.OK
     P, U = pairs.points[pairs.visible], pairs.pixels[pairs.visible]
     # OpenCV takes float32 points: compare on exactly those values.
     P, U = P.astype(np.float32).astype(np.float64), U.astype(np.float32).astype(np.float64)
@@ -263,7 +263,7 @@ def test_vmap_over_problems_and_float32():
         Us.append(project(C, X) + rng.normal(scale=0.3, size=(N, 2)))
         Cs.append(C)
     out = jax.jit(jax.vmap(calibrate))(np.stack(Xs), np.stack(Us), np.ones((2, N), bool))
-    assert np.all(np.asarray(out.status) == Status.OK)
+    assert np.all(np.asarray(out.status) == CalibrationStatus.OK)
     for k in range(2):
         single = calibrate_jit(Xs[k], Us[k], np.ones(N, bool))
         np.testing.assert_allclose(out.camera[k], single.camera, rtol=1e-6, atol=1e-9)
@@ -271,7 +271,7 @@ def test_vmap_over_problems_and_float32():
     X, U, C = Xs[0], project(Cs[0], Xs[0]), Cs[0]
     out32 = dlt_jit(X.astype(np.float32), U.astype(np.float32), np.ones(N, bool))
     assert out32.camera.dtype == jnp.float32
-    assert int(out32.status) == Status.OK
+    assert int(out32.status) == CalibrationStatus.OK
     assert float(out32.error) < 0.05  # px
 
 

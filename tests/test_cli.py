@@ -13,7 +13,8 @@ import pytest
 
 import jaxpose as jp
 from jaxpose.cli._main import build_parser, main
-from jaxpose.cli._problem import bench_problem, read_problem
+from jaxpose.cli._problem_read import read_problem
+from jaxpose.cli._problem_write import bench_problem
 
 DATA = Path(__file__).parent / "data" / "chessboard"
 

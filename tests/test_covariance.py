@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose.strategy._covariance import _symmetric_pinv
+from jaxpose.solvers._linalg import symmetric_pinv
 
 covariance = jax.jit(lambda C, M, I, pose, sigma: jp.pose_covariance(C, M, I, pose, sigma=sigma))
 estimate = jax.jit(lambda C, M, I, pose, mask: jp.pose_covariance(C, M, I, pose, mask))
@@ -171,7 +171,7 @@ def test_symmetric_pseudo_inverse(rank, seed, scale):
     rng = np.random.default_rng(seed)
     B = rng.normal(size=(6, rank)) * rng.uniform(0.1, 10, size=6)[:, None] * scale
     A = B @ B.T
-    P, r, positive = _symmetric_pinv(jnp.asarray(A))
+    P, r, positive = symmetric_pinv(jnp.asarray(A))
     P = np.asarray(P)
     assert np.all(np.isfinite(P)) and int(r) == rank and bool(positive) == (rank == 6)
     tol = 1e-8 * np.abs(A).max() + 1e-300

@@ -833,14 +833,14 @@ def _solve_terminates_on_non_finite() -> bool:
         import jax, jax.numpy as jnp
         jax.config.update("jax_enable_x64", True)
         try:
-            from jaxpose.strategy._mixed import _Jobs, _run_jobs
+            from jaxpose.strategy._jobs import Jobs, run_jobs
         except ImportError:
             raise SystemExit(0)
         need = jnp.array([False, False, True])
         for p in (jnp.finfo(jnp.float64).max, jnp.inf, jnp.nan):
-            jobs = _Jobs(need, jnp.array([0.0, 0.0, p]), (jnp.arange(3.0),),
-                         (jnp.zeros(3),), jnp.zeros(3, bool))
-            jax.block_until_ready(_run_jobs(
+            jobs = Jobs(need, jnp.array([0.0, 0.0, p]), (jnp.arange(3.0),),
+                        (jnp.zeros(3),), jnp.zeros(3, bool))
+            jax.block_until_ready(run_jobs(
                 lambda x: (2 * x,), jobs, 1, 1, lambda phase, jobs, carry: (jobs, carry), 0))
         """
     )

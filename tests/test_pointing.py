@@ -12,10 +12,10 @@ from helpers import central_difference_jacobian, opencv_optimum
 from hypothesis import given, settings
 
 import jaxpose as jp
+from jaxpose.apps import PointingStatus
 from jaxpose.apps._bench import random_rotation
 from jaxpose.apps._pointing import Faces, face_normals, intersect_ray, pick, polyhedron_faces
 from jaxpose.geometry._rotation import rotvec_to_matrix
-from jaxpose.solvers._status import Status
 
 BENCH = jp.default_bench()
 FACES = polyhedron_faces(BENCH.model)
@@ -101,7 +101,7 @@ def test_middle_of_the_object_hits_the_top_face():
     centre = np.array([0.0, 0.0, 10.0]) @ BENCH.R.T + BENCH.t  # top face, model (0, 0, 10)
     uv = _project(C, centre)
     hit = pick_one(uv)
-    assert int(hit.status) == Status.OK
+    assert int(hit.status) == PointingStatus.OK
     assert int(hit.face) == 0  # the top face
     np.testing.assert_allclose(hit.point, centre, atol=1e-9)
     np.testing.assert_allclose(hit.normal, BENCH.R[:, 2], atol=1e-12)
@@ -124,11 +124,11 @@ def test_agrees_with_reference_over_the_image():
             continue  # within a micrometre of an edge: either face is right
         assert int(hits.face[i]) == f
         if f < 0:
-            assert int(hits.status[i]) == Status.NO_FACE
+            assert int(hits.status[i]) == PointingStatus.NO_FACE
             np.testing.assert_array_equal(hits.point[i], 0)
         else:
             n_hit += 1
-            assert int(hits.status[i]) == Status.OK
+            assert int(hits.status[i]) == PointingStatus.OK
             np.testing.assert_allclose(hits.point[i], x, atol=1e-9)
             # The point reprojects onto the click.
             np.testing.assert_allclose(_project(C, np.asarray(hits.point[i])), uv[i], atol=1e-9)
@@ -138,11 +138,11 @@ def test_agrees_with_reference_over_the_image():
 
 def test_no_face_there():
     hit = pick_one(np.array([5.0, 5.0]), None, np.eye(6), np.eye(2))
-    assert int(hit.status) == Status.NO_FACE
+    assert int(hit.status) == PointingStatus.NO_FACE
     assert int(hit.face) == -1
     for x in (hit.point, hit.normal, hit.covariance, hit.distance):
         np.testing.assert_array_equal(x, 0)
-    assert "none of the object's faces" in Status.NO_FACE.message
+    assert "none of the object's faces" in PointingStatus.NO_FACE.message
 
 
 def test_non_finite_input_gives_status_not_nan():
@@ -150,13 +150,13 @@ def test_non_finite_input_gives_status_not_nan():
     R = np.broadcast_to(BENCH.R, (4, 3, 3)).copy()
     R[3, 0, 0] = np.nan
     hits = picks(uv, R=R, S_pose=np.eye(6))
-    assert hits.status.tolist() == [Status.OK] + [Status.NOT_FINITE] * 3
+    assert hits.status.tolist() == [PointingStatus.OK] + [PointingStatus.NOT_FINITE] * 3
     for x in hits:
         assert np.all(np.isfinite(x))
     bad_cov = np.eye(6)
     bad_cov[0, 0] = np.inf
     hit = pick_one(uv[0], None, bad_cov)
-    assert int(hit.status) == Status.NOT_FINITE
+    assert int(hit.status) == PointingStatus.NOT_FINITE
     assert all(np.all(np.isfinite(x)) for x in hit)
 
 
@@ -164,7 +164,7 @@ def test_object_behind_the_camera_is_not_hit():
     # Same ray, object mirrored behind the camera centre: nothing in front.
     o = np.asarray(jp.camera_centre(C))
     behind = jp.Pose(BENCH.R, 2 * o - BENCH.t)
-    assert int(pick_one(_project(C, BENCH.t), behind).status) == Status.NO_FACE
+    assert int(pick_one(_project(C, BENCH.t), behind).status) == PointingStatus.NO_FACE
 
 
 def test_intersect_ray_nearest_face():
@@ -309,7 +309,7 @@ def test_clicked_point_within_noise_propagated_tolerance():
         for s in range(SEEDS):
             R, t, cov = estimates[s]
             hit = pick_one(uv[s], jp.Pose(R, t), cov)
-            assert int(hit.status) == Status.OK and int(hit.face) == 0
+            assert int(hit.status) == PointingStatus.OK and int(hit.face) == 0
             err = np.asarray(hit.point) - truth
             along = err @ ray
             np.testing.assert_allclose(err, along * ray, atol=1e-9)  # on the ray

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 
 import jaxpose as jp
+from jaxpose.apps import RobotStatus
 from jaxpose.apps._robot import (
     Robot,
     default_robot,
@@ -18,7 +19,6 @@ from jaxpose.apps._robot import (
     inverse_kinematics,
     joint_command,
 )
-from jaxpose.solvers._status import Status
 
 ROBOT = default_robot()
 DEG = math.pi / 180
@@ -96,7 +96,7 @@ def test_fk_of_ik_is_the_target(seed):
     targets = np.asarray(fk(ROBOT, q).tip)
     approach = rng.normal(size=(16, 3))
     for out in (ik(ROBOT, targets, approach), ik_free(ROBOT, targets)):
-        assert np.all(np.asarray(out.status) == Status.OK)
+        assert np.all(np.asarray(out.status) == RobotStatus.OK)
         np.testing.assert_allclose(fk(ROBOT, out.joints).tip, targets, atol=1e-9)
         assert np.all(np.asarray(out.error) < 1e-9)
         j = np.asarray(out.joints)
@@ -112,7 +112,7 @@ def test_ik_with_the_shank_as_approach_returns_the_joints():
     q[:, 3] = np.abs(q[:, 3]) + 1 * DEG  # tilt > 0, so the pan is determined
     state = fk(ROBOT, q)
     out = ik(ROBOT, state.tip, state.shank)
-    assert np.all(np.asarray(out.status) == Status.OK)
+    assert np.all(np.asarray(out.status) == RobotStatus.OK)
     np.testing.assert_allclose(out.joints, q, atol=1e-9)
     np.testing.assert_allclose(out.approach_angle, 0.0, atol=1e-6)
 
@@ -144,11 +144,11 @@ def test_unreachable_and_joint_limits_are_flagged():
     )
     out = ik_free(ROBOT, targets)
     assert np.asarray(out.status).tolist() == [
-        Status.UNREACHABLE,
-        Status.UNREACHABLE,
-        Status.JOINT_LIMITS,
-        Status.JOINT_LIMITS,
-        Status.NOT_FINITE,
+        RobotStatus.UNREACHABLE,
+        RobotStatus.UNREACHABLE,
+        RobotStatus.JOINT_LIMITS,
+        RobotStatus.JOINT_LIMITS,
+        RobotStatus.NOT_FINITE,
     ]
     for x in out:
         assert np.all(np.isfinite(x))
@@ -175,7 +175,7 @@ def test_joint_limits_choose_another_solution():
     lower[2], upper[2] = -90 * DEG, 90 * DEG
     robot = ROBOT._replace(lower=lower, upper=upper)
     out = ik(robot, np.array([[0.0, 0.0, 100.0]]), np.array([[-1.0, 0.0, 0.0]]))
-    assert int(out.status[0]) == Status.OK
+    assert int(out.status[0]) == RobotStatus.OK
     x, y, pan, tilt = np.asarray(out.joints[0])
     assert abs(pan) < 1e-12 and tilt < 0
     state = fk(robot, out.joints)
@@ -185,7 +185,7 @@ def test_joint_limits_choose_another_solution():
     lower[:2], upper[:2] = [-50.0, -50.0], [50.0, 50.0]
     robot = ROBOT._replace(lower=lower, upper=upper)
     out = ik(robot, np.array([[200.0, 0.0, 100.0]]), np.array([[-1.0, 0.0, 0.0]]))
-    assert int(out.status[0]) == Status.OK
+    assert int(out.status[0]) == RobotStatus.OK
     np.testing.assert_allclose(fk(robot, out.joints).tip[0], [200.0, 0.0, 100.0], atol=1e-9)
     j = np.asarray(out.joints[0])
     assert np.all((j >= lower - 1e-12) & (j <= upper + 1e-12))
@@ -203,7 +203,7 @@ def test_moved_base():
         state.tip, np.stack([reference_tip(robot, qi) for qi in q]), atol=1e-9
     )
     out = ik_free(robot, state.tip)
-    assert np.all(np.asarray(out.status) == Status.OK)
+    assert np.all(np.asarray(out.status) == RobotStatus.OK)
     np.testing.assert_allclose(fk(robot, out.joints).tip, state.tip, atol=1e-9)
 
 
@@ -235,7 +235,7 @@ def test_the_robot_reaches_points_on_the_bench_object():
     points, normals = np.asarray(points), np.asarray(normals)
     assert len(points) >= 24
     out = ik(ROBOT, points, -normals)
-    assert np.all(np.asarray(out.status) == Status.OK)
+    assert np.all(np.asarray(out.status) == RobotStatus.OK)
     state = fk(ROBOT, out.joints)
     np.testing.assert_allclose(state.tip, points, atol=1e-9)
     assert np.all(np.sum(np.asarray(state.shank) * normals, axis=1) < 0)

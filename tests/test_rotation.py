@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from hypothesis import given
 
+from jaxpose.geometry._euler import matrix_to_rpy, rpy_to_matrix
 from jaxpose.geometry._rotation import (
     compose,
     hat,
     matrix_to_quaternion,
     matrix_to_rotvec,
-    matrix_to_rpy,
     project_to_rotation,
     quaternion_conjugate,
     quaternion_multiply,
@@ -34,7 +34,6 @@ from jaxpose.geometry._rotation import (
     rotation_distance,
     rotvec_to_matrix,
     rotvec_to_quaternion,
-    rpy_to_matrix,
 )
 
 ATOL = 1e-12

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose.api._batch import _argument_order, _pad_rows
+from jaxpose.api._batch import _pad_rows
+from jaxpose.api._solve import _argument_order
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TOL = 1e-12

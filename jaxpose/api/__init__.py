@@ -1,13 +1,16 @@
 """Layer 4, the entry points: `solve` (JAX-native, differentiable), `solve_many` (batch-first),
-`solve_pnp`/`solve_pnp_batch` (OpenCV conventions), chunked and sharded batches.
+`solve_batch` (chunked and sharded batches from numpy), and `solve_pnp`/`solve_pnp_batch`/
+`solve_pnp_ransac` (OpenCV conventions, numpy in and out).
 """
+
 from ._batch import batch_devices as batch_devices
 from ._batch import batch_mesh as batch_mesh
 from ._batch import run_batched as run_batched
-from ._batch import solve_batch as solve_batch
+from ._pnp import solve_pnp as solve_pnp
+from ._pnp import solve_pnp_batch as solve_pnp_batch
+from ._pnp import solve_pnp_ransac as solve_pnp_ransac
 from ._solve import METHODS as METHODS
 from ._solve import Solution as Solution
 from ._solve import solve as solve
+from ._solve import solve_batch as solve_batch
 from ._solve import solve_many as solve_many
-from ._solve import solve_pnp as solve_pnp
-from ._solve import solve_pnp_batch as solve_pnp_batch

@@ -32,11 +32,8 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
-from jaxtyping import Bool, Float
 
-from ..geometry._validate import as_batched
-
-__all__ = ["batch_mesh", "batch_devices", "run_batched", "solve_batch"]
+__all__ = ["batch_mesh", "batch_devices", "run_batched"]
 
 #: The mesh axis that the batch is split over.
 AXIS = "batch"
@@ -143,7 +140,7 @@ def run_batched(
     `fn(*shared, *batched, *static)` (or `fn(*shared, *batched, **static)` when `static` is
     a mapping) must compute `B` independent problems: every output
     leaf has the batch axis first and row `i` depends on row `i` of the batched inputs
-    only (a `jax.vmap` of a one-problem function, e.g. `jaxpose._api._batched_opencv`).
+    only (a `jax.vmap` of a one-problem function, e.g. `jaxpose.api._pnp._batched_opencv`).
 
     **Arguments:**
     - `fn`: the batched function (hashable: a module-level or jitted function; compiled
@@ -217,115 +214,3 @@ def run_batched(
         pending = (start, stop, result)
     collect(*pending)
     return jax.tree.unflatten(treedef, outputs)
-
-
-def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):
-    """`jaxpose.solve` over the rows of a chunk: `solve_many` (batch-first, one shared
-    Levenberg-Marquardt buffer) when the camera is shared, else `jax.vmap(solve)`."""
-    from ._solve import solve, solve_many
-
-    if not camera_batched:
-        if not model_batched:
-            model = jnp.broadcast_to(model, (image.shape[0], *model.shape))
-        return solve_many(camera, model, image, mask, **dict(options))
-    one = functools.partial(solve, **dict(options))
-    axes = (0, 0 if model_batched else None, 0, 0)
-    return jax.vmap(one, in_axes=axes)(camera, model, image, mask)
-
-
-def solve_batch(
-    camera: Float[np.ndarray, "3 4"] | Float[np.ndarray, "B 3 4"],
-    models: Float[np.ndarray, "B n 3"] | Float[np.ndarray, "n 3"],
-    images: Float[np.ndarray, "B n 2"],
-    masks: Bool[np.ndarray, "B n"] | None = None,
-    *,
-    chunk_size: int | None = None,
-    devices=None,
-    **options,
-):
-    """`jaxpose.solve` over a batch of problems, sharded over devices and chunked.
-
-    Equivalent to `jax.jit(jax.vmap(jaxpose.solve))` on the whole batch (same results,
-    row by row; with one shared camera it runs `jaxpose.solve_many`, the batch-first
-    path, much faster than a plain `vmap` of the mixed method), but with the batch axis
-    split over `devices` (a `"batch"` mesh) and streamed in chunks of `chunk_size`
-    problems, so that a million problems fit in memory. Call it eagerly (its inputs are
-    concrete arrays); under `jit` use `jax.vmap(jaxpose.solve)` itself. The dtype follows
-    the inputs (float32 stays float32; float64 needs `jax_enable_x64`).
-
-    **Arguments:**
-    - `camera`: one camera `(3, 4)` for all problems, or one per problem `(B, 3, 4)`.
-    - `models`: `(B, n, 3)` model points, or `(n, 3)` shared by all problems.
-    - `images`: `(B, n, 2)` pixels.
-    - `masks`: optional `(B, n)` bool, which matches each problem uses.
-    - `chunk_size`, `devices`: see `jaxpose.run_batched`.
-    - `options`: keyword arguments of `jaxpose.solve` (`method`, `threshold`,
-      `triplet_budget`, ...).
-
-    **Returns:** a `Solution` whose fields have a leading `B` axis (jax arrays on the
-    default device). Problems with non-finite values give `status` `NOT_FINITE` and finite
-    placeholders, as `jaxpose.solve` does.
-
-    **Raises:** `ValueError` naming the argument for wrong shapes, dtypes or options.
-    """
-    from ._solve import Solution, _check_budget, _check_method
-
-    _check_method(options.get("method", "mixed"))
-    _check_budget(options.get("triplet_budget"))
-    images = as_batched(images, "images", 2, shared=False)
-    B, n = images.shape[:2]
-    models = as_batched(models, "models", 3, batch_size=B, count=n)
-    camera = as_batched(camera, "camera", (3, 4), batch_size=B)
-    dtype = jnp.result_type(camera.dtype, models.dtype, images.dtype)
-    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
-    if masks is None:
-        masks = np.ones((B, n), dtype=bool)
-    else:
-        masks = np.asarray(masks)
-        if masks.dtype != np.bool_ or masks.shape != (B, n):
-            raise ValueError(
-                f"masks must be a bool array of shape ({B}, {n}), got {masks.dtype} {masks.shape}"
-            )
-    camera_batched, model_batched = camera.ndim == 3, models.ndim == 3
-    shared, batched = [], []
-    (batched if camera_batched else shared).append(camera.astype(dtype))
-    (batched if model_batched else shared).append(models.astype(dtype))
-    batched += [images.astype(dtype), masks]
-    order = _argument_order(camera_batched, model_batched)
-    out = run_batched(
-        _Reordered(order),
-        shared,
-        batched,
-        static={
-            "camera_batched": camera_batched,
-            "model_batched": model_batched,
-            "options": tuple(sorted(options.items())),
-        },
-        chunk_size=chunk_size,
-        devices=devices,
-    )
-    return Solution(*jax.tree.map(jnp.asarray, tuple(out)))
-
-
-def _argument_order(camera_batched: bool, model_batched: bool) -> tuple[int, int, int, int]:
-    """Positions of (camera, model, image, mask) in `shared + batched`."""
-    shared = [i for i, b in ((0, camera_batched), (1, model_batched)) if not b]
-    batched = [i for i, b in ((0, camera_batched), (1, model_batched)) if b] + [2, 3]
-    position = {arg: pos for pos, arg in enumerate(shared + batched)}
-    return tuple(position[i] for i in range(4))
-
-
-class _Reordered:
-    """`_solve_rows` taking its arguments in `shared + batched` order (hashable)."""
-
-    def __init__(self, order: tuple[int, ...]):
-        self.order = order
-
-    def __call__(self, *args, **static):
-        return _solve_rows(*(args[i] for i in self.order), **static)
-
-    def __hash__(self):
-        return hash((_Reordered, self.order))
-
-    def __eq__(self, other):
-        return isinstance(other, _Reordered) and other.order == self.order

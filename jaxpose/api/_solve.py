@@ -1,5 +1,6 @@
-"""The public entry points: `solve` (JAX-native) and `solve_pnp` / `solve_pnp_batch`
-(drop-in for `cv2.solvePnP`, numpy in and out)."""
+"""The JAX-native entry points: `solve` (one problem, differentiable), `solve_many` (a
+batch, batch-first) and `solve_batch` (a large batch from numpy, chunked and sharded over
+devices). The OpenCV-convention ones are in `jaxpose.api._pnp`."""
 
 from __future__ import annotations
 
@@ -11,35 +12,22 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..geometry._camera import camera_matrix, undistort_pixels
 from ..geometry._errors import pose_error
 from ..geometry._pose import Observations, Pose, observations, transform
-from ..geometry._rotation import matrix_to_rotvec
-from ..geometry._validate import (
-    as_dist_coeffs,
-    as_intrinsics,
-    as_matching,
-    as_points,
-    check_problem,
-)
+from ..geometry._validate import as_batched, check_problem
 from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
 from ..solvers._residuals import in_front, pixel_residuals, rms, rounding_level
 from ..solvers._status import Status
-from ..strategy._covariance import _chart_at, _chart_pose, _chart_residuals, _symmetric_pinv
-from ..strategy._mixed import (
-    CHUNK,
-    best_triplet,
-    initial_poses,
-    mixed_from_initial,
-    mixed_from_initial_batch,
-    spread_triplets,
-    triplet_indices,
-)
+from ..strategy._implicit import polish
+from ..strategy._jobs import CHUNK
+from ..strategy._mixed import mixed_from_initial, mixed_from_initial_batch
+from ..strategy._options import METHODS as METHODS
+from ..strategy._options import Options, resolve
+from ..strategy._triplets import best_triplet, initial_poses, select_triplets, triplet_count
+from ._batch import run_batched
 
-__all__ = ["METHODS", "Solution", "solve", "solve_many", "solve_pnp", "solve_pnp_batch"]
-
-METHODS = ("mixed", "three_point", "linear", "nonlinear")
+__all__ = ["METHODS", "Solution", "solve", "solve_batch", "solve_many"]
 
 
 class Solution(NamedTuple):
@@ -64,36 +52,14 @@ class Solution(NamedTuple):
     triplet: Int[Array, ""]
 
 
-def _check_method(method: str) -> None:
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-
-
-def _check_budget(triplet_budget: int | None) -> None:
-    if triplet_budget is None:
-        return
-    if isinstance(triplet_budget, bool) or not isinstance(triplet_budget, (int, np.integer)):
-        raise ValueError(f"triplet_budget must be a positive int or None, got {triplet_budget!r}")
-    if triplet_budget < 1:
-        raise ValueError(f"triplet_budget must be >= 1, got {triplet_budget}")
-
-
 def solve(
     camera: Float[Array, "3 4"],
     model: Float[Array, "n 3"],
     image: Float[Array, "n 2"],
     mask: Bool[Array, " n"] | None = None,
     *,
-    method: str = "mixed",
-    threshold: float | None = None,
-    rel_threshold: float = 0.01,
-    min_area: float = 40.0,
-    collinear_tol: float = 5e-3,
-    linear_iterations: int = 5,
-    nonlinear_budget: int | None = 32,
-    max_steps: int = 50,
-    max_triplets: int | None = 2000,
-    triplet_budget: int | None = None,
+    options: Options | None = None,
+    **changes,
 ) -> Solution:
     """Recover the pose of a known object from one calibrated image (JAX-native).
 
@@ -106,17 +72,15 @@ def solve(
     - `model`: `(n, 3)` model points `m_i`, `n >= 3`.
     - `image`: `(n, 2)` pixels matched to them.
     - `mask`: optional `(n,)` bool, which matches to use (fixed shapes with padding).
-    - `method`: `"mixed"` (default), `"three_point"`, `"linear"` or `"nonlinear"` (the last
-      two started from every triplet's three-point pose, as in the paper's experiment).
-    - `threshold`: acceptance threshold on Eq. 8 (px); `None`: adaptive, within
-      `rel_threshold` of the best converged error.
-    - `min_area`, `collinear_tol`: degenerate-triplet tests (px^2; scale-free).
-    - `linear_iterations`, `nonlinear_budget`, `max_steps`: see `jaxpose.mixed`.
-    - `max_triplets`: above this many triplets (`C(n, 3)`; n = 24 gives 2024) a fixed
-      seeded sample of this many is used instead of all (`jaxpose.triplet_indices`).
-    - `triplet_budget`: solve only this many triplets, the ones with the largest image
-      triangles (`jaxpose.spread_triplets`): the fast path for large batches of easy
-      problems (`None`: all of them).
+    - `options`: a `jaxpose.Options` (default `Options()`): the method (`"mixed"`,
+      `"three_point"`, `"linear"` or `"nonlinear"`, the last two started from every
+      triplet's three-point pose, as in the paper's experiment), the acceptance
+      threshold, the triplets used (`max_triplets`, `triplet_budget`: the fast path for
+      large batches of easy problems), the mixed algorithm's budgets. A static argument
+      under `jax.jit` (hashable).
+    - `**changes`: keyword shorthands for fields of `options`, e.g.
+      `solve(C, M, I, method="linear", threshold=2.0)`; an unknown one raises
+      `ValueError`.
 
     **Returns:** a `Solution`.
 
@@ -124,33 +88,23 @@ def solve(
     the three optimising methods, `pose` (and `error`, `pose_error`) are differentiable
     with respect to `camera`, `model` and `image` through the optimality conditions of
     Eq. 8 at the answer (implicit function theorem, the full Hessian: exact first
-    derivatives, not an unrolled iteration; see `_polish`). The discrete choices (triplet,
-    root, branch, acceptance) carry none. A problem with no accepted pose returns its
-    placeholder with a zero gradient; `method="three_point"` gives no gradient to the pose.
+    derivatives, not an unrolled iteration; see `jaxpose.strategy._implicit.polish`). The
+    discrete choices (triplet, root, branch, acceptance) carry none. A problem with no
+    accepted pose returns its placeholder with a zero gradient; `method="three_point"`
+    gives no gradient to the pose.
     """
-    _check_method(method)
-    _check_budget(triplet_budget)
+    options = resolve(options, changes)
     check_problem(camera, model, image, mask)
     camera, model, image, finite = _finite_inputs(camera, model, image)
     obs = observations(camera, model, image, mask)
-    rows, initial = _initial(obs, min_area, collinear_tol, max_triplets, triplet_budget)
+    rows, initial = _initial(obs, options)
     sobs = jax.lax.stop_gradient(obs)
-    if method == "mixed":
-        res = mixed_from_initial(
-            sobs,
-            initial,
-            threshold=threshold,
-            rel_threshold=rel_threshold,
-            linear_iterations=linear_iterations,
-            nonlinear_budget=nonlinear_budget,
-            max_steps=max_steps,
-        )
+    if options.method == "mixed":
+        res = mixed_from_initial(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
     else:
-        found = _per_triplet(
-            method, sobs, initial, threshold, rel_threshold, linear_iterations, max_steps
-        )
-    return _not_finite(_finish(method, obs, rows, *found), finite)
+        found = _per_triplet(sobs, initial, options)
+    return _not_finite(_finish(options.method, obs, rows, *found), finite)
 
 
 def solve_many(
@@ -159,16 +113,8 @@ def solve_many(
     image: Float[Array, "B n 2"],
     mask: Bool[Array, "B n"] | None = None,
     *,
-    method: str = "mixed",
-    threshold: float | None = None,
-    rel_threshold: float = 0.01,
-    min_area: float = 40.0,
-    collinear_tol: float = 5e-3,
-    linear_iterations: int = 5,
-    nonlinear_budget: int | None = 32,
-    max_steps: int = 50,
-    max_triplets: int | None = 2000,
-    triplet_budget: int | None = None,
+    options: Options | None = None,
+    **changes,
 ) -> Solution:
     """`solve` for a batch of `B` problems of equal `n`: the same answers as
     `jax.vmap(solve)`, computed batch-first. `camera` is `(3, 4)`, one camera for every
@@ -181,8 +127,7 @@ def solve_many(
     Arguments as `solve` (`model`, `image`, `mask` with a leading batch axis); pure, for
     `jit` and `grad`.
     """
-    _check_method(method)
-    _check_budget(triplet_budget)
+    options = resolve(options, changes)
     _check_many(camera, model, image, mask)
     B = model.shape[0]
     shared = None if jnp.ndim(camera) == 2 else 0
@@ -194,32 +139,18 @@ def solve_many(
         # triplet gathers, which costs seconds of compile time for nothing.)
         mask = jax.lax.optimization_barrier(jnp.ones(model.shape[:2], dtype=bool))
     obs = jax.vmap(observations)(camera, model, image, mask)
-    T = _triplet_count(model.shape[1], max_triplets, triplet_budget)
-
-    def initial_of(o):
-        return _initial(o, min_area, collinear_tol, max_triplets, triplet_budget)
-
-    rows, initial = jax.lax.map(initial_of, obs, batch_size=max(1, min(B, CHUNK // T)))
+    T = triplet_count(model.shape[1], options)
+    rows, initial = jax.lax.map(
+        lambda o: _initial(o, options), obs, batch_size=max(1, min(B, CHUNK // T))
+    )
     sobs = jax.lax.stop_gradient(obs)
-    if method == "mixed":
-        res = mixed_from_initial_batch(
-            sobs,
-            initial,
-            threshold=threshold,
-            rel_threshold=rel_threshold,
-            linear_iterations=linear_iterations,
-            nonlinear_budget=nonlinear_budget,
-            max_steps=max_steps,
-        )
+    if options.method == "mixed":
+        res = mixed_from_initial_batch(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
     else:
-        found = jax.vmap(
-            lambda o, i: _per_triplet(
-                method, o, i, threshold, rel_threshold, linear_iterations, max_steps
-            )
-        )(sobs, initial)
+        found = jax.vmap(lambda o, i: _per_triplet(o, i, options))(sobs, initial)
     return jax.vmap(_not_finite)(
-        jax.vmap(functools.partial(_finish, method))(obs, rows, *found), finite
+        jax.vmap(functools.partial(_finish, options.method))(obs, rows, *found), finite
     )
 
 
@@ -290,26 +221,17 @@ def _not_finite(sol: Solution, finite) -> Solution:
     )
 
 
-def _triplet_count(n: int, max_triplets: int | None, triplet_budget: int | None) -> int:
-    T = triplet_indices(n, max_triplets).shape[0]
-    return T if triplet_budget is None else min(T, triplet_budget)
-
-
-def _initial(obs: Observations, min_area, collinear_tol, max_triplets, triplet_budget):
+def _initial(obs: Observations, options: Options):
     """Step 1: the triplets used (rows of `triplet_indices(n, max_triplets)`) and their
     best three-point roots (no gradient)."""
     sobs = jax.lax.stop_gradient(obs)
-    candidates = triplet_indices(obs.model.shape[0], max_triplets)
-    rows = jnp.arange(candidates.shape[0])
-    triplets = candidates
-    if triplet_budget is not None and triplet_budget < candidates.shape[0]:
-        rows, triplets = spread_triplets(sobs, candidates, triplet_budget)
-    initial = initial_poses(sobs, min_area=min_area, collinear_tol=collinear_tol, triplets=triplets)
-    return rows, initial
+    rows, triplets = select_triplets(sobs, options)
+    return rows, initial_poses(sobs, options=options, triplets=triplets)
 
 
-def _per_triplet(method, sobs, initial, threshold, rel_threshold, linear_iterations, max_steps):
+def _per_triplet(sobs: Observations, initial, options: Options):
     """Every triplet's pose, error and status for the methods other than mixed."""
+    method, threshold = options.method, options.threshold
     dtype = sobs.camera.dtype
     big = jnp.finfo(dtype).max
     usable = initial.status == Status.OK
@@ -328,8 +250,10 @@ def _per_triplet(method, sobs, initial, threshold, rel_threshold, linear_iterati
             status = jnp.where(reject, Status.REJECTED, status)
         return initial.pose, error, status
     if method == "linear":
-        run = jax.vmap(lambda R, t: linear(sobs, Pose(R, t), iterations=linear_iterations))
+        iterations = options.linear_iterations
+        run = jax.vmap(lambda R, t: linear(sobs, Pose(R, t), iterations=iterations))
     else:
+        max_steps = options.max_steps
         run = jax.vmap(lambda R, t: nonlinear(sobs, Pose(R, t), max_steps=max_steps))
     out = run(initial.pose.R, initial.pose.t)
     status = jnp.where(usable, out.status, initial.status)
@@ -338,7 +262,7 @@ def _per_triplet(method, sobs, initial, threshold, rel_threshold, linear_iterati
     if threshold is None:
         best = jnp.min(jnp.where(converged, error, big))
         floor = rounding_level(sobs)
-        thr = jnp.where(best < big, jnp.maximum(best * (1 + rel_threshold), floor), big)
+        thr = jnp.where(best < big, jnp.maximum(best * (1 + options.rel_threshold), floor), big)
     else:
         thr = jnp.asarray(threshold, dtype)
     status = jnp.where(converged & (error >= thr), Status.REJECTED, status)
@@ -355,7 +279,7 @@ def _finish(method, obs: Observations, rows, poses: Pose, error, status) -> Solu
     pose = jax.tree.map(lambda a, b: jnp.where(accepted, a, b), pose, Pose.identity(dtype))
     error = jnp.where(accepted, error[index], jnp.where(error[index] < big, error[index], 0))
     if method != "three_point":
-        pose = _polish(obs, pose, accepted)
+        pose = polish(obs, pose, accepted)
         final = rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
         error = jnp.where(accepted, final, error)
     return Solution(
@@ -368,187 +292,109 @@ def _finish(method, obs: Observations, rows, poses: Pose, error, status) -> Solu
     )
 
 
-def _polish(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
-    """The answer, polished by Newton steps, with the implicit derivative attached.
-
-    In the chart `xi = (w, u)` around the (gradient-free) answer `(R^, t^)` of
-    `jaxpose._covariance` (`R = exp(hat(w)) R^`, rotation about the centroid of the world
-    points, translation scaled by their RMS radius), let `f(xi, theta) = |r(xi, theta)|^2 / 2`
-    be Eq. 8's cost, `theta` the camera, model and image, `g = df/dxi`, `H = d^2f/dxi^2`
-    (the full Hessian, not Gauss-Newton's). At the optimum `g(0, theta) = 0`, so by the
-    implicit function theorem
-
-        dxi*/dtheta = -H^-1 dg/dtheta.
-
-    That is the derivative of the Newton step `xi = -H^-1 g(0, theta)` with `H` held
-    constant. Two Newton steps are taken from the answer (each only when `H` is positive
-    definite and the step is below `1e-3`, rad and object radii: at a converged answer they
-    move the pose by rounding, and they finish a pose that a solver left within its
-    tolerance, e.g. `1e-6` from Levenberg-Marquardt), the second carrying exactly the
-    implicit derivative. A singular `H` (a pose the matches do not determine) uses the
-    pseudo-inverse. Not accepted: the answer with a zero derivative. First derivatives
-    only (`H` carries none).
-    """
-    sobs = jax.lax.stop_gradient(obs)
-    start = _newton(sobs, jax.lax.stop_gradient(pose), accepted)
-    return _newton(obs, jax.lax.stop_gradient(start), accepted)
+def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):
+    """`solve` over the rows of a chunk: `solve_many` (batch-first, one shared
+    Levenberg-Marquardt buffer) when the camera is shared, else `jax.vmap(solve)`."""
+    if not camera_batched:
+        if not model_batched:
+            model = jnp.broadcast_to(model, (image.shape[0], *model.shape))
+        return solve_many(camera, model, image, mask, options=options)
+    one = functools.partial(solve, options=options)
+    axes = (0, 0 if model_batched else None, 0, 0)
+    return jax.vmap(one, in_axes=axes)(camera, model, image, mask)
 
 
-def _newton(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
-    """One guarded Newton step of Eq. 8 from `pose` (no derivative w.r.t. `pose`); its
-    derivative w.r.t. `obs` is the implicit one (see `_polish`)."""
-    sobs = jax.lax.stop_gradient(obs)
-    chart = _chart_at(pose, sobs)
-    zero = jnp.zeros(6, pose.t.dtype)
-
-    def cost(xi, o):
-        r = _chart_residuals(xi, chart, o)
-        return 0.5 * jnp.sum(r * r)
-
-    g = jax.grad(cost)(zero, obs)
-    H = jax.hessian(cost)(zero, sobs)
-    H_inv, _, positive = _symmetric_pinv(H)
-    step = -(H_inv @ g)
-    value = jax.lax.stop_gradient(step)
-    # Taken only within the quadratic convergence region of a minimum: H positive definite
-    # (so the step descends) and a step below 1e-3 (rad, object radii). The cost itself is
-    # no judge there: its rounding (~eps times the plane terms, not the cost) exceeds the
-    # decrease of a 1e-11 step.
-    local = jnp.all(jnp.abs(value) < 1e-3) & jnp.all(jnp.isfinite(value))
-    xi = jnp.where(positive & local, value, 0) + (step - value)
-    return _chart_pose(jnp.where(accepted, xi, 0), chart)
-
-
-# --------------------------------------------------------------------------- cv2-style
-
-
-@functools.partial(jax.jit, static_argnames=("method", "triplet_budget"))
-def _solve_opencv(K, obj, img, method, triplet_budget=None):
-    C = camera_matrix(K)
-    sol = solve(C, obj, img, method=method, triplet_budget=triplet_budget)
-    return sol.accepted, matrix_to_rotvec(sol.pose.R), sol.pose.t
-
-
-@functools.partial(jax.jit, static_argnames=("method", "triplet_budget"))
-def _batched_opencv(K, obj, img, method, triplet_budget=None):
-    sol = solve_many(camera_matrix(K), obj, img, method=method, triplet_budget=triplet_budget)
-    return sol.accepted, jax.vmap(matrix_to_rotvec)(sol.pose.R), sol.pose.t
-
-
-def _read_array(x, name: str) -> np.ndarray:
-    """`np.asarray(x)`, with numpy's complaints (ragged lists and the like) naming `name`."""
-    if x is None:
-        raise ValueError(f"{name} is required, got None")
-    try:
-        return np.asarray(x)
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"{name} could not be read as an array: {exc}") from exc
-
-
-def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: bool):
-    K = as_intrinsics(camera_matrix_, "camera_matrix")
-    dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
-    if not batched:
-        obj = as_points(object_points, "object_points", 3, min_count=3)
-        img = as_points(image_points, "image_points", 2, min_count=3)
-        as_matching(obj, img)
-        return K, obj, undistort_pixels(img, K, dist)
-    img = _read_array(image_points, "image_points")
-    if img.ndim != 3 or img.shape[-1] != 2:
-        raise ValueError(f"image_points must have shape (B, n, 2), got {img.shape}")
-    B, n = img.shape[:2]
-    if B == 0:
-        raise ValueError("image_points must hold at least one problem, got an empty batch")
-    img = np.stack([as_points(x, "image_points", 2, min_count=3) for x in img])
-    obj = _read_array(object_points, "object_points")
-    if obj.ndim == 2:
-        obj = np.broadcast_to(as_points(obj, "object_points", 3, min_count=3), (B, *obj.shape))
-    elif obj.ndim == 3 and obj.shape[0] == B:
-        obj = np.stack([as_points(x, "object_points", 3, min_count=3) for x in obj])
-    else:
-        raise ValueError(
-            f"object_points must have shape (n, 3) or (B, n, 3) with B = {B}, got {obj.shape}"
-        )
-    if obj.shape[1] != n:
-        raise ValueError(
-            f"object_points has {obj.shape[1]} points per problem but image_points has {n}"
-        )
-    if dist is not None:
-        img = np.stack([undistort_pixels(x, K, dist) for x in img])
-    return K, obj, img
-
-
-def solve_pnp(
-    object_points,
-    image_points,
-    camera_matrix,
-    dist_coeffs=None,
+def solve_batch(
+    camera: Float[np.ndarray, "3 4"] | Float[np.ndarray, "B 3 4"],
+    models: Float[np.ndarray, "B n 3"] | Float[np.ndarray, "n 3"],
+    images: Float[np.ndarray, "B n 2"],
+    masks: Bool[np.ndarray, "B n"] | None = None,
     *,
-    method="mixed",
-    triplet_budget=None,
-):
-    """Drop-in for `cv2.solvePnP`: the pose of the object in the camera frame.
-
-    Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
-    (or `(n, 1, 3)`), `image_points` `(n, 2)`, `camera_matrix` `K` `(3, 3)`, optional
-    `dist_coeffs` (removed first with `cv2.undistortPoints`). Computes in float64.
-
-    **Returns:** `(ok, rvec, tvec)` with `rvec`, `tvec` of shape `(3, 1)`: `x_cam =
-    Rodrigues(rvec) X + tvec`. `ok` is False (with finite placeholders) when no pose is
-    accepted. `method`, `triplet_budget`: see `jaxpose.solve`.
-    """
-    _check_method(method)
-    _check_budget(triplet_budget)
-    K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, False)
-    with jax.enable_x64(True):
-        ok, rvec, tvec = _solve_opencv(
-            jnp.asarray(K, jnp.float64),
-            jnp.asarray(obj, jnp.float64),
-            jnp.asarray(img, jnp.float64),
-            method,
-            triplet_budget,
-        )
-        ok, rvec, tvec = bool(ok), np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
-    return ok, rvec.reshape(3, 1), tvec.reshape(3, 1)
-
-
-def solve_pnp_batch(
-    object_points,
-    image_points,
-    camera_matrix,
-    dist_coeffs=None,
-    *,
-    method="mixed",
-    triplet_budget=None,
-    chunk_size=None,
+    options: Options | None = None,
+    chunk_size: int | None = None,
     devices=None,
-):
-    """`B` independent problems of equal `n` in one compiled call (float64).
+    **changes,
+) -> Solution:
+    """`jaxpose.solve` over a batch of problems, sharded over devices and chunked.
 
-    **Arguments:** `object_points` `(B, n, 3)` or shared `(n, 3)`; `image_points`
-    `(B, n, 2)`; one `camera_matrix` and `dist_coeffs` for all.
+    Equivalent to `jax.jit(jax.vmap(jaxpose.solve))` on the whole batch (same results,
+    row by row; with one shared camera it runs `jaxpose.solve_many`, the batch-first
+    path, much faster than a plain `vmap` of the mixed method), but with the batch axis
+    split over `devices` (a `"batch"` mesh) and streamed in chunks of `chunk_size`
+    problems, so that a million problems fit in memory. Call it eagerly (its inputs are
+    concrete arrays); under `jit` use `jax.vmap(jaxpose.solve)` itself. The dtype follows
+    the inputs (float32 stays float32; float64 needs `jax_enable_x64`).
 
-    `triplet_budget`: solve only this many well-spread triplets per problem (see
-    `jaxpose.solve`); the exhaustive `C(n, 3)` costs `n^3` per problem.
+    **Arguments:**
+    - `camera`: one camera `(3, 4)` for all problems, or one per problem `(B, 3, 4)`.
+    - `models`: `(B, n, 3)` model points, or `(n, 3)` shared by all problems.
+    - `images`: `(B, n, 2)` pixels.
+    - `masks`: optional `(B, n)` bool, which matches each problem uses.
+    - `options`, `**changes`: as `jaxpose.solve` (an `Options`, and keyword shorthands
+      for its fields: `method`, `threshold`, `triplet_budget`, ...).
+    - `chunk_size`, `devices`: see `jaxpose.run_batched`.
 
-    `chunk_size`: at most this many problems per compiled call (bounded memory; `None`:
-    all at once); `devices`: the batch is split over these (`None`: all of
-    `jax.devices()`; an int: the first ones); see `jaxpose.run_batched`.
+    **Returns:** a `Solution` whose fields have a leading `B` axis (jax arrays on the
+    default device). Problems with non-finite values give `status` `NOT_FINITE` and finite
+    placeholders, as `jaxpose.solve` does.
 
-    **Returns:** `(ok (B,), rvecs (B, 3), tvecs (B, 3))`, OpenCV's conventions.
+    **Raises:** `ValueError` naming the argument for wrong shapes, dtypes or options.
     """
-    _check_method(method)
-    _check_budget(triplet_budget)
-    K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
-    from ._batch import run_batched
+    options = resolve(options, changes)
+    images = as_batched(images, "images", 2, shared=False)
+    B, n = images.shape[:2]
+    models = as_batched(models, "models", 3, batch_size=B, count=n)
+    camera = as_batched(camera, "camera", (3, 4), batch_size=B)
+    dtype = jnp.result_type(camera.dtype, models.dtype, images.dtype)
+    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    if masks is None:
+        masks = np.ones((B, n), dtype=bool)
+    else:
+        masks = np.asarray(masks)
+        if masks.dtype != np.bool_ or masks.shape != (B, n):
+            raise ValueError(
+                f"masks must be a bool array of shape ({B}, {n}), got {masks.dtype} {masks.shape}"
+            )
+    camera_batched, model_batched = camera.ndim == 3, models.ndim == 3
+    shared, batched = [], []
+    (batched if camera_batched else shared).append(camera.astype(dtype))
+    (batched if model_batched else shared).append(models.astype(dtype))
+    batched += [images.astype(dtype), masks]
+    order = _argument_order(camera_batched, model_batched)
+    out = run_batched(
+        _Reordered(order),
+        shared,
+        batched,
+        static={
+            "camera_batched": camera_batched,
+            "model_batched": model_batched,
+            "options": options,
+        },
+        chunk_size=chunk_size,
+        devices=devices,
+    )
+    return Solution(*jax.tree.map(jnp.asarray, tuple(out)))
 
-    with jax.enable_x64(True):
-        ok, rvecs, tvecs = run_batched(
-            _batched_opencv,
-            (np.asarray(K, np.float64),),
-            (np.asarray(obj, np.float64), np.asarray(img, np.float64)),
-            static=(method, triplet_budget),
-            chunk_size=chunk_size,
-            devices=devices,
-        )
-        return np.asarray(ok), np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64)
+
+def _argument_order(camera_batched: bool, model_batched: bool) -> tuple[int, int, int, int]:
+    """Positions of (camera, model, image, mask) in `shared + batched`."""
+    shared = [i for i, b in ((0, camera_batched), (1, model_batched)) if not b]
+    batched = [i for i, b in ((0, camera_batched), (1, model_batched)) if b] + [2, 3]
+    position = {arg: pos for pos, arg in enumerate(shared + batched)}
+    return tuple(position[i] for i in range(4))
+
+
+class _Reordered:
+    """`_solve_rows` taking its arguments in `shared + batched` order (hashable)."""
+
+    def __init__(self, order: tuple[int, ...]):
+        self.order = order
+
+    def __call__(self, *args, **static):
+        return _solve_rows(*(args[i] for i in self.order), **static)
+
+    def __hash__(self):
+        return hash((_Reordered, self.order))
+
+    def __eq__(self, other):
+        return isinstance(other, _Reordered) and other.order == self.order

@@ -1,13 +1,14 @@
 """Layer 5, applications: the paper's bench and experiment, model database, recognition
 hypothesis verification, click-to-3D pointing, the robot, camera calibration.
 """
+
 from ._bench import Bench as Bench
-from ._bench import Polyhedron as Polyhedron
 from ._bench import Scene as Scene
 from ._bench import cross_prism as cross_prism
 from ._bench import default_bench as default_bench
 from ._bench import random_scene as random_scene
 from ._calibration import Calibration as Calibration
+from ._calibration import CalibrationStatus as CalibrationStatus
 from ._calibration import LedPairs as LedPairs
 from ._calibration import calibrate as calibrate
 from ._calibration import calibrate_with_robot as calibrate_with_robot
@@ -19,10 +20,12 @@ from ._models import model_bench as model_bench
 from ._models import model_database as model_database
 from ._pointing import Faces as Faces
 from ._pointing import Hit as Hit
+from ._pointing import PointingStatus as PointingStatus
 from ._pointing import face_normals as face_normals
 from ._pointing import intersect_ray as intersect_ray
 from ._pointing import pick as pick
 from ._pointing import polyhedron_faces as polyhedron_faces
+from ._polyhedron import Polyhedron as Polyhedron
 from ._recognition import Hypothesis as Hypothesis
 from ._recognition import Verdict as Verdict
 from ._recognition import Verification as Verification
@@ -33,6 +36,7 @@ from ._robot import JOINT_NAMES as JOINT_NAMES
 from ._robot import JointCommand as JointCommand
 from ._robot import Robot as Robot
 from ._robot import RobotState as RobotState
+from ._robot import RobotStatus as RobotStatus
 from ._robot import default_robot as default_robot
 from ._robot import forward_kinematics as forward_kinematics
 from ._robot import inverse_kinematics as inverse_kinematics

@@ -16,6 +16,9 @@ import math
 
 import numpy as np
 
+from ..geometry._camera import project_numpy
+from ._polyhedron import Polyhedron, prism, seen_vertices
+
 __all__ = [
     "DEFAULT_NOISE",
     "Bench",
@@ -54,39 +57,11 @@ _IMAGE_SIZE = (768, 576)
 _K = np.array([[3000.0, 0.0, 384.0], [0.0, 3000.0, 288.0], [0.0, 0.0, 1.0]])
 
 
-@dataclasses.dataclass(frozen=True)
-class Polyhedron:
-    """A polyhedral model: vertices `(V, 3)`, edges `(E, 2)` and faces (lists of indices,
-    counter-clockwise seen from outside, so that the right-hand normal points out)."""
-
-    name: str
-    vertices: np.ndarray
-    edges: np.ndarray
-    faces: tuple[tuple[int, ...], ...]
-
-
 def cross_prism() -> Polyhedron:
     """The bench object: a 12-gon cross-shaped prism, 155 x 143 x 20 mm, centred at the
     origin, 24 vertices (0-11 on the top face z = +10, 12-23 on the bottom z = -10),
     36 edges and 14 faces."""
-    k = len(_CROSS_OUTLINE)
-    top = np.column_stack([_CROSS_OUTLINE, np.full(k, _THICKNESS / 2)])
-    bottom = np.column_stack([_CROSS_OUTLINE, np.full(k, -_THICKNESS / 2)])
-    vertices = np.vstack([top, bottom])
-    ring = [(i, (i + 1) % k) for i in range(k)]
-    edges = (
-        [(a, b) for a, b in ring]
-        + [(a + k, b + k) for a, b in ring]
-        + [(i, i + k) for i in range(k)]
-    )
-    faces = [tuple(range(k)), tuple(range(2 * k - 1, k - 1, -1))]
-    faces += [(a, a + k, b + k, b) for a, b in ring]
-    return Polyhedron(
-        name="cross_prism",
-        vertices=vertices,
-        edges=np.asarray(edges, dtype=np.int32),
-        faces=tuple(faces),
-    )
+    return prism("cross_prism", _CROSS_OUTLINE, _THICKNESS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,23 +116,6 @@ def _look_at(centre: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarr
     return np.stack([x, y, z])
 
 
-def _project(camera: np.ndarray, points: np.ndarray) -> np.ndarray:
-    h = points @ camera[:, :3].T + camera[:, 3]
-    return h[:, :2] / h[:, 2:]
-
-
-def _visible_vertices(model: Polyhedron, R: np.ndarray, t: np.ndarray, centre: np.ndarray):
-    """Vertices on at least one face whose outward normal faces the camera."""
-    world = model.vertices @ R.T + t
-    seen = np.zeros(len(world), dtype=bool)
-    for face in model.faces:
-        p = world[list(face)]
-        normal = np.cross(p[1] - p[0], p[2] - p[0])
-        if normal @ (centre - p[0]) > 0:
-            seen[list(face)] = True
-    return np.flatnonzero(seen)
-
-
 def default_bench(seed: int = 0, noise: float = DEFAULT_NOISE) -> Bench:
     """The paper's bench, replicated: the cross prism about 2 m in front of a 25 mm camera
     (f = 3000 px, 768 x 576), 16 matched vertices, Gaussian pixel noise of `noise` px
@@ -175,14 +133,14 @@ def default_bench(seed: int = 0, noise: float = DEFAULT_NOISE) -> Bench:
     t_wc = -R_wc @ centre
     camera = _K @ np.column_stack([R_wc, t_wc])
 
-    # Matched: the 12 top vertices and the 4 visible bottom vertices nearest the camera.
-    seen = _visible_vertices(model, R, t, centre)
+    # Matched: the 12 top vertices and the 4 seen bottom vertices nearest the camera.
+    seen = seen_vertices(model, R, t, centre)
     k = len(_CROSS_OUTLINE)
     bottom = seen[seen >= k]
     distance = np.linalg.norm(model.vertices[bottom] @ R.T + t - centre, axis=1)
     visible = np.concatenate([np.arange(k), np.sort(bottom[np.argsort(distance)[:4]])])
     model_points = model.vertices[visible]
-    clean = _project(camera, model_points @ R.T + t)
+    clean, _ = project_numpy(camera, model_points @ R.T + t)
     rng = np.random.default_rng(seed)
     image_points = clean + rng.normal(scale=noise, size=clean.shape)
     return Bench(
@@ -261,7 +219,7 @@ def random_scene(
     R = random_rotation(rng)
     t = world.mean(axis=0) + rng.normal(scale=0.1, size=3)
     model_points = (world - t) @ R  # so that world = R m + t
-    clean = _project(camera, world)
+    clean, _ = project_numpy(camera, world)
     image = clean + rng.normal(scale=noise, size=clean.shape) if noise > 0 else clean.copy()
     return Scene(
         camera=camera,

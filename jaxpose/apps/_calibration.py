@@ -24,14 +24,14 @@ error in pixels over the 11 degrees of freedom of `C`: the chart
 orthonormal basis of the complement of `c~_0`), which is regular at and around the
 linear estimate and fixes the free scale.
 
-**Degenerate layouts are reported, not solved silently.** From the eigenvalues
-`l1 >= l2 >= l3` of the normalised points' scatter matrix: `sqrt(l2 / l1) < flat_tol`
-(collinear points): `Status.DEGENERATE_MODEL`; `sqrt(l3 / l1) < flat_tol` (coplanar
-points: a plane only determines a homography, 8 of the 11 unknowns):
-`Status.COPLANAR_POINTS`; fewer than six pairs: `Status.TOO_FEW_POINTS`; and a
+**Degenerate layouts are reported, not solved silently** (`CalibrationStatus`). From the
+eigenvalues `l1 >= l2 >= l3` of the normalised points' scatter matrix:
+`sqrt(l2 / l1) < flat_tol` (collinear points): `DEGENERATE_MODEL`;
+`sqrt(l3 / l1) < flat_tol` (coplanar points: a plane only determines a homography, 8 of
+the 11 unknowns): `COPLANAR_POINTS`; fewer than six pairs: `TOO_FEW_POINTS`; and a
 second-smallest singular value below `sqrt(eps)` times the largest (a critical
-configuration, more than one null direction): `Status.UNDETERMINED_CAMERA`. The camera
-returned with such a status is finite but not to be used.
+configuration, more than one null direction): `UNDETERMINED_CAMERA`. The camera returned
+with such a status is finite but not to be used.
 
 `dlt` and `calibrate` are pure JAX for ONE set of pairs, with an optional mask for fixed
 shapes (batch with `jax.vmap`); `simulate_led_pairs` and `calibrate_with_robot` are numpy
@@ -49,13 +49,15 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ..geometry._camera import _as_float, normalize_camera, project, project_with_depth
+from ..geometry._camera import normalize_camera, project, project_with_depth
+from ..geometry._numerics import as_float, by_precision, masked_centroid, safe_sqrt
 from ..solvers._nonlinear import _solver
-from ..solvers._status import Status
+from ..solvers._status import StatusCode
 from ._robot import Robot, forward_kinematics
 
 __all__ = [
     "Calibration",
+    "CalibrationStatus",
     "LedPairs",
     "calibrate",
     "calibrate_with_robot",
@@ -63,6 +65,26 @@ __all__ = [
     "led_joint_grid",
     "simulate_led_pairs",
 ]
+
+
+class CalibrationStatus(StatusCode):
+    """Whether the pairs determine a camera (`Calibration.status`). The codes it shares
+    with the solvers' `Status` have the same values."""
+
+    OK = 0, "calibrated"
+    NONLINEAR_NOT_CONVERGED = 4, "Levenberg-Marquardt did not converge"
+    DEGENERATE_MODEL = 9, "the 3D points are (nearly) collinear"
+    TOO_FEW_POINTS = 10, "fewer than six valid 3D-2D pairs"
+    NOT_FINITE = 11, "non-finite values in the input or during solving"
+    COPLANAR_POINTS = (
+        16,
+        "the 3D points are (nearly) coplanar: they do not determine a 3x4 camera matrix",
+    )
+    UNDETERMINED_CAMERA = (
+        17,
+        "the 3D-2D pairs do not determine the camera matrix (the DLT system has more than "
+        "one null direction)",
+    )
 
 
 class Calibration(NamedTuple):
@@ -74,7 +96,7 @@ class Calibration(NamedTuple):
     - `error`: `()` Eq. 8 reprojection error (RMS, px) of `camera` over the used pairs.
     - `dlt_error`: `()` the same for the linear (DLT) estimate.
     - `steps`: `()` int32 Levenberg-Marquardt steps taken (0 without refinement).
-    - `status`: `()` int32 `Status`: `OK`, `TOO_FEW_POINTS`, `DEGENERATE_MODEL`
+    - `status`: `()` int32 `CalibrationStatus`: `OK`, `TOO_FEW_POINTS`, `DEGENERATE_MODEL`
       (collinear points), `COPLANAR_POINTS`, `UNDETERMINED_CAMERA`,
       `NONLINEAR_NOT_CONVERGED` or `NOT_FINITE`.
     """
@@ -105,7 +127,7 @@ def _similarity(x, w):
     centroid to the origin, RMS distance `sqrt(d)`. Returns `(T (d+1, d+1), scale)`."""
     d = x.shape[1]
     count = jnp.maximum(jnp.sum(w), 1)
-    mean = jnp.sum(x * w[:, None], axis=0) / count
+    mean = masked_centroid(x, w)
     ms = jnp.sum(jnp.sum((x - mean[None, :]) ** 2, axis=1) * w) / count
     ok = ms > 0
     scale = jnp.where(ok, math.sqrt(d) / jnp.sqrt(jnp.where(ok, ms, 1)), 1)
@@ -115,7 +137,7 @@ def _similarity(x, w):
 
 
 def _check_inputs(points, pixels, mask):
-    points, pixels = _as_float(points, pixels)
+    points, pixels = as_float(points, pixels)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must have shape (n, 3), got {tuple(points.shape)}")
     if pixels.shape != (points.shape[0], 2):
@@ -165,13 +187,13 @@ def _linear(points, pixels, mask, flat_tol) -> _Linear:
     status = jnp.select(
         [~finite, jnp.sum(mask) < 6, collinear, coplanar, undetermined],
         [
-            Status.NOT_FINITE,
-            Status.TOO_FEW_POINTS,
-            Status.DEGENERATE_MODEL,
-            Status.COPLANAR_POINTS,
-            Status.UNDETERMINED_CAMERA,
+            CalibrationStatus.NOT_FINITE,
+            CalibrationStatus.TOO_FEW_POINTS,
+            CalibrationStatus.DEGENERATE_MODEL,
+            CalibrationStatus.COPLANAR_POINTS,
+            CalibrationStatus.UNDETERMINED_CAMERA,
         ],
-        Status.OK,
+        CalibrationStatus.OK,
     ).astype(jnp.int32)
     return _Linear(c.reshape(3, 4), Vt[:11].T, T3, T2, Xn, un, scale2, status)
 
@@ -183,8 +205,7 @@ def _denormalise(lin: _Linear, Cn):
 def _rms(residuals, mask):
     count = jnp.maximum(jnp.sum(mask), 1)
     ss = jnp.sum(jnp.where(mask[:, None], residuals, 0) ** 2) / count
-    ok = ss > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, ss, 1)), 0)
+    return safe_sqrt(ss)
 
 
 def _residual(y, args):
@@ -199,7 +220,7 @@ def _finish(C, error, dlt_error, steps, status):
     dtype = C.dtype
     ok = jnp.all(jnp.isfinite(C)) & jnp.isfinite(error)
     C = jnp.where(ok, normalize_camera(jnp.where(ok, C, 0)), jnp.eye(3, 4, dtype=dtype))
-    status = jnp.where(ok, status, Status.NOT_FINITE).astype(jnp.int32)
+    status = jnp.where(ok, status, CalibrationStatus.NOT_FINITE).astype(jnp.int32)
     big = jnp.finfo(dtype).max
     return Calibration(
         camera=C,
@@ -275,10 +296,9 @@ def calibrate(
     """
     points, pixels, mask = _check_inputs(points, pixels, mask)
     dtype = points.dtype
-    wide = jnp.finfo(dtype).bits >= 64
-    rtol = (1e-10 if wide else 1e-5) if rtol is None else rtol
-    atol = (1e-12 if wide else 1e-6) if atol is None else atol
-    gtol = (1e-6 if wide else 1e-2) if gtol is None else gtol
+    rtol = by_precision(dtype, f64=1e-10, f32=1e-5) if rtol is None else rtol
+    atol = by_precision(dtype, f64=1e-12, f32=1e-6) if atol is None else atol
+    gtol = by_precision(dtype, f64=1e-6, f32=1e-2) if gtol is None else gtol
     lin = _linear(points, pixels, mask, flat_tol)
     args = (lin, mask)
     y0 = jnp.zeros(11, dtype)
@@ -302,7 +322,9 @@ def calibrate(
     error = jnp.where(better, error, dlt_error)
     Cn = (lin.camera_n.reshape(-1) + lin.basis @ y).reshape(3, 4)
     status = jnp.where(
-        (lin.status == Status.OK) & ~converged, Status.NONLINEAR_NOT_CONVERGED, lin.status
+        (lin.status == CalibrationStatus.OK) & ~converged,
+        CalibrationStatus.NONLINEAR_NOT_CONVERGED,
+        lin.status,
     )
     return _finish(_denormalise(lin, Cn), error, dlt_error, sol.stats["num_steps"], status)
 

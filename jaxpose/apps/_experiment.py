@@ -17,10 +17,16 @@ from ..geometry._pose import Pose, observations
 from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
 from ..solvers._status import Status
-from ..strategy._mixed import MixedResult, initial_poses, mixed_from_initial, triplet_indices
+from ..strategy._mixed import MixedResult, mixed_from_initial
+from ..strategy._options import Options
+from ..strategy._triplets import initial_poses, triplet_indices
 from ._bench import Scene
 
-__all__ = ["PAPER_TABLE1", "ExperimentResult", "run_experiment", "write_figures"]
+# The paper's protocol: every triplet, and every one that needs it refined by
+# Levenberg-Marquardt.
+_EVERY_TRIPLET = Options(nonlinear_budget=None, max_triplets=None)
+
+__all__ = ["PAPER_TABLE1", "ExperimentResult", "run_experiment"]
 
 METHOD_NAMES = ("three_point", "nonlinear", "linear", "mixed")
 
@@ -125,7 +131,7 @@ class ExperimentResult:
 @functools.partial(jax.jit, static_argnames=("threshold",))
 def _four_methods(camera, model, image, threshold):
     obs = observations(camera, model, image)
-    initial = initial_poses(obs)
+    initial = initial_poses(obs, options=_EVERY_TRIPLET)
 
     def lin(R, t):
         return linear(obs, Pose(R, t))
@@ -135,7 +141,7 @@ def _four_methods(camera, model, image, threshold):
 
     lin_res = jax.vmap(lin)(initial.pose.R, initial.pose.t)
     nl_res = jax.vmap(nl)(initial.pose.R, initial.pose.t)
-    mix = mixed_from_initial(obs, initial, threshold=threshold)
+    mix = mixed_from_initial(obs, initial, threshold=threshold, options=_EVERY_TRIPLET)
 
     def mm(poses):
         return jax.vmap(lambda R, t: pose_error(obs.camera, R, t, obs.model, obs.image, obs.mask))(
@@ -199,48 +205,6 @@ def run_experiment(scene: Scene, *, threshold: float | None = None) -> Experimen
         threshold=float(mix.threshold),
         mixed=mix,
     )
-
-
-def write_figures(result: ExperimentResult, out_dir: Path) -> list[Path]:
-    """Figures 3 and 4: histogram and cumulative histogram of samples versus pose error,
-    one curve per method. Returns the PNG paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    used = result.used
-    hi = float(np.percentile(np.concatenate([v[used] for v in result.pose_error.values()]), 99))
-    bins = np.linspace(0.0, max(hi, result.optimum * 2), 60)
-    labels = {
-        "three_point": "3-segment",
-        "nonlinear": "non-linear",
-        "linear": "linear",
-        "mixed": "mixed",
-    }
-    paths = []
-    for name, cumulative in (("figure3_histogram.png", False), ("figure4_cumulative.png", True)):
-        fig, ax = plt.subplots(figsize=(7, 4.2), dpi=120)
-        for m in METHOD_NAMES:
-            e = np.clip(result.pose_error[m][used], bins[0], bins[-1])
-            counts, edges = np.histogram(e, bins=bins)
-            share = 100.0 * counts / max(len(e), 1)
-            y = np.cumsum(share) if cumulative else share
-            ax.step(edges[1:], y, where="pre", label=labels[m])
-        ax.set_xlabel("pose error (mm)")
-        ax.set_ylabel("cumulative samples (%)" if cumulative else "samples (%)")
-        title = "Figure 4: cumulative histogram" if cumulative else "Figure 3: histogram"
-        ax.set_title(f"{title} ({int(np.sum(used))} triplets)")
-        ax.grid(alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        path = out_dir / name
-        fig.savefig(path)
-        plt.close(fig)
-        paths.append(path)
-    return paths
 
 
 def write_json(result: ExperimentResult, path: Path) -> Path:

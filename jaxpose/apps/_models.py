@@ -22,46 +22,26 @@ import math
 
 import numpy as np
 
-from ._bench import DEFAULT_NOISE, Bench, Polyhedron, cross_prism, default_bench
+from ..geometry._camera import project_numpy
+from ._bench import DEFAULT_NOISE, Bench, cross_prism, default_bench
+from ._polyhedron import Polyhedron, prism, seen_vertices
 
 __all__ = [
     "box",
     "chessboard",
-    "face_normals",
     "hexagonal_prism",
     "l_block",
     "model_bench",
     "model_database",
     "pyramid",
-    "seen_vertices",
 ]
-
-
-def _prism(name: str, outline: np.ndarray, thickness: float) -> Polyhedron:
-    """A right prism over a simple polygon `outline` `(k, 2)` (counter-clockwise seen from
-    +z): vertices `0..k-1` on the top face `z = +thickness / 2`, `k..2k-1` below them."""
-    outline = np.asarray(outline, dtype=np.float64)
-    k = len(outline)
-    top = np.column_stack([outline, np.full(k, thickness / 2)])
-    bottom = np.column_stack([outline, np.full(k, -thickness / 2)])
-    ring = [(i, (i + 1) % k) for i in range(k)]
-    edges = [(a, b) for a, b in ring] + [(a + k, b + k) for a, b in ring]
-    edges += [(i, i + k) for i in range(k)]
-    faces = [tuple(range(k)), tuple(range(2 * k - 1, k - 1, -1))]
-    faces += [(a, a + k, b + k, b) for a, b in ring]
-    return Polyhedron(
-        name=name,
-        vertices=np.vstack([top, bottom]),
-        edges=np.asarray(edges, dtype=np.int32),
-        faces=tuple(faces),
-    )
 
 
 def box(size: tuple[float, float, float] = (120.0, 80.0, 50.0)) -> Polyhedron:
     """A cuboid of `size` (mm) centred at the origin: 8 vertices, 12 edges, 6 faces."""
     a, b, c = (float(s) / 2 for s in size)
     outline = np.array([[-a, -b], [a, -b], [a, b], [-a, b]])
-    return _prism("box", outline, 2 * c)
+    return prism("box", outline, 2 * c)
 
 
 def hexagonal_prism(radius: float = 60.0, height: float = 40.0) -> Polyhedron:
@@ -69,7 +49,7 @@ def hexagonal_prism(radius: float = 60.0, height: float = 40.0) -> Polyhedron:
     18 edges, 8 faces."""
     angles = np.radians(np.arange(6) * 60.0 + 15.0)
     outline = radius * np.column_stack([np.cos(angles), np.sin(angles)])
-    return _prism("hexagonal_prism", outline, height)
+    return prism("hexagonal_prism", outline, height)
 
 
 def l_block(thickness: float = 35.0) -> Polyhedron:
@@ -78,7 +58,7 @@ def l_block(thickness: float = 35.0) -> Polyhedron:
     outline = np.array(
         [[0.0, 0.0], [140.0, 0.0], [140.0, 45.0], [50.0, 45.0], [50.0, 100.0], [0.0, 100.0]]
     )
-    return _prism("l_block", outline - [70.0, 50.0], thickness)
+    return prism("l_block", outline - [70.0, 50.0], thickness)
 
 
 def pyramid(base: float = 130.0, height: float = 45.0) -> Polyhedron:
@@ -153,58 +133,6 @@ def chessboard(
 # --------------------------------------------------------------------------- scenes
 
 
-def face_normals(vertices: np.ndarray, faces) -> np.ndarray:
-    """Outward unit normals `(F, 3)` of (possibly non-planar) polygon faces (Newell)."""
-    normals = []
-    for face in faces:
-        p = vertices[list(face)]
-        q = np.roll(p, -1, axis=0)
-        n = np.sum(np.cross(p, q), axis=0)
-        normals.append(n / max(np.linalg.norm(n), 1e-300))
-    return np.array(normals).reshape(-1, 3)
-
-
-def _inside(point: np.ndarray, polygon: np.ndarray, normal: np.ndarray) -> bool:
-    """Even-odd test of a point in the plane of a 3D polygon (projected along its normal's
-    largest axis)."""
-    keep = [i for i in range(3) if i != int(np.argmax(np.abs(normal)))]
-    x, y = point[keep]
-    px, py = polygon[:, keep[0]], polygon[:, keep[1]]
-    qx, qy = np.roll(px, -1), np.roll(py, -1)
-    crosses = (py > y) != (qy > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        at = px + (y - py) * (qx - px) / (qy - py)
-    return bool(np.sum(crosses & (x < at)) % 2)
-
-
-def seen_vertices(model: Polyhedron, R: np.ndarray, t: np.ndarray, centre: np.ndarray):
-    """Indices of the vertices a camera at `centre` sees when the model is at `(R, t)`:
-    on a face turned towards the camera and not hidden behind another such face."""
-    world = model.vertices @ np.asarray(R).T + np.asarray(t)
-    normals = face_normals(world, model.faces)
-    front = [i for i, f in enumerate(model.faces) if normals[i] @ (centre - world[f[0]]) > 0]
-    candidates = sorted({v for i in front for v in model.faces[i]})
-    seen = []
-    for v in candidates:
-        ray = world[v] - centre
-        hidden = False
-        for i in front:
-            face = model.faces[i]
-            if v in face:
-                continue
-            n = normals[i]
-            den = n @ ray
-            if abs(den) < 1e-12:
-                continue
-            s = n @ (world[face[0]] - centre) / den
-            if 1e-9 < s < 1 - 1e-9 and _inside(centre + s * ray, world[list(face)], n):
-                hidden = True
-                break
-        if not hidden:
-            seen.append(v)
-    return np.array(seen, dtype=np.int64)
-
-
 def model_bench(
     model: Polyhedron | str,
     seed: int = 0,
@@ -246,9 +174,7 @@ def model_bench(
     centre = -reference.R_wc.T @ reference.t_wc
     visible = seen_vertices(model, R, t, centre)
     model_points = model.vertices[visible]
-    world = model_points @ R.T + t
-    h = world @ camera[:, :3].T + camera[:, 3]
-    clean = h[:, :2] / h[:, 2:]
+    clean, _ = project_numpy(camera, model_points @ R.T + t)
     rng = np.random.default_rng(seed)
     image_points = clean + rng.normal(scale=noise, size=clean.shape)
     return Bench(

@@ -45,13 +45,31 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ..geometry._camera import _as_float, backproject
+from ..geometry._camera import backproject
+from ..geometry._numerics import as_float, masked_centroid, safe_norm, safe_normalize
 from ..geometry._pose import Pose
 from ..geometry._rotation import rotvec_to_matrix
-from ..solvers._status import Status
-from ._bench import Polyhedron
+from ..solvers._status import StatusCode
+from ._polyhedron import Polyhedron
 
-__all__ = ["Faces", "Hit", "face_normals", "intersect_ray", "pick", "polyhedron_faces"]
+__all__ = [
+    "Faces",
+    "Hit",
+    "PointingStatus",
+    "face_normals",
+    "intersect_ray",
+    "pick",
+    "polyhedron_faces",
+]
+
+
+class PointingStatus(StatusCode):
+    """What became of a click (`Hit.status`). `OK` and `NOT_FINITE` have the values of the
+    solvers' `Status`."""
+
+    OK = 0, "the visual ray meets a face of the object"
+    NOT_FINITE = 11, "non-finite values in the input"
+    NO_FACE = 13, "the visual ray of the pixel meets none of the object's faces"
 
 
 class Faces(NamedTuple):
@@ -79,7 +97,7 @@ class Hit(NamedTuple):
     - `normal`: `(3,)` unit outward normal of that face, world frame (zero when no hit).
     - `covariance`: `(3, 3)` covariance of `point` propagated from the pose and pixel
       covariances given to `pick` (zero when none were given, or no hit).
-    - `status`: `()` int32 `Status`: `OK`, `NO_FACE` (the ray misses the object) or
+    - `status`: `()` int32 `PointingStatus`: `OK`, `NO_FACE` (the ray misses the object) or
       `NOT_FINITE` (non-finite input).
     """
 
@@ -161,23 +179,16 @@ def _area_vector(corners):
     return 0.5 * jnp.sum(jnp.cross(corners, jnp.roll(corners, -1, axis=0)), axis=0)
 
 
-def _safe_norm(x):
-    sq = jnp.sum(x * x)
-    ok = sq > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1)), 0)
-
-
 def _safe_unit(x):
-    sq = jnp.sum(x * x)
-    ok = sq > 0
-    return jnp.where(ok, x / jnp.sqrt(jnp.where(ok, sq, 1)), 0), ok
+    """`x / |x|` and whether `|x| > 0` (the zero vector gives zero, with zero gradient)."""
+    return safe_normalize(x, fallback=0), safe_norm(x) > 0
 
 
 def face_normals(faces: Faces, pose: Pose) -> Float[Array, "f 3"]:
     """Unit outward normals of the faces at a pose, world frame `(F, 3)` (zero for a
     face of zero area)."""
     _check_faces(faces)
-    R, t = _as_float(pose.R, pose.t)
+    R, t = as_float(pose.R, pose.t)
     corners = _world_faces(faces, Pose(R, t), R.dtype)
     return jax.vmap(lambda c: _safe_unit(_area_vector(c))[0])(corners)
 
@@ -187,8 +198,7 @@ def _plane_hit(origin, direction, corners, mask):
     (finite, non-parallel). Differentiable in all arguments."""
     dtype = origin.dtype
     area = _area_vector(corners)
-    w = mask.astype(dtype)
-    centroid = jnp.sum(corners * w[:, None], axis=0) / jnp.maximum(jnp.sum(w), 1)
+    centroid = masked_centroid(corners, mask)
     denom = jnp.dot(area, direction)
     scale = jnp.sqrt(jnp.sum(area * area)) * jnp.sqrt(jnp.sum(direction * direction))
     crossing = jnp.abs(denom) > 64 * jnp.finfo(dtype).eps * scale
@@ -244,7 +254,7 @@ def intersect_ray(
     shared by two faces go to either face.
     """
     _check_faces(faces)
-    origin, direction, R, t = _as_float(origin, direction, pose.R, pose.t)
+    origin, direction, R, t = as_float(origin, direction, pose.R, pose.t)
     _check_shape(origin, (3,), "origin")
     _check_shape(direction, (3,), "direction")
     _check_shape(R, (3, 3), "pose.R")
@@ -273,11 +283,15 @@ def _intersect(origin, direction, faces, pose) -> Hit:
     point = origin + lam_f * direction
     normal, _ = _safe_unit(_area_vector(corners[face]))
     zero3 = jnp.zeros(3, dtype)
-    status = jnp.where(finite, jnp.where(found, Status.OK, Status.NO_FACE), Status.NOT_FINITE)
+    status = jnp.where(
+        finite,
+        jnp.where(found, PointingStatus.OK, PointingStatus.NO_FACE),
+        PointingStatus.NOT_FINITE,
+    )
     return Hit(
         point=jnp.where(found, point, zero3),
         face=jnp.where(found, face, -1).astype(jnp.int32),
-        distance=jnp.where(found, lam_f * _safe_norm(direction), 0).astype(dtype),
+        distance=jnp.where(found, lam_f * safe_norm(direction), 0).astype(dtype),
         normal=jnp.where(found, normal, zero3),
         covariance=jnp.zeros((3, 3), dtype),
         status=status.astype(jnp.int32),
@@ -332,7 +346,7 @@ def pick(
     this also holds under `jit`).
     """
     _check_faces(faces)
-    C, R, t, pixel = _as_float(camera, pose.R, pose.t, pixel)
+    C, R, t, pixel = as_float(camera, pose.R, pose.t, pixel)
     _check_shape(C, (3, 4), "camera")
     _check_shape(R, (3, 3), "pose.R")
     _check_shape(t, (3,), "pose.t")
@@ -369,7 +383,7 @@ def pick(
         J = jax.jacfwd(_point_on_face)(params, C, corners, mask, pose)
         cov = J @ S @ J.T
         cov = 0.5 * (cov + cov.T)
-        ok = (hit.status == Status.OK) & _finite(cov)
+        ok = (hit.status == PointingStatus.OK) & _finite(cov)
         hit = hit._replace(covariance=jnp.where(ok, cov, 0))
     return _unless(hit, finite)
 
@@ -383,5 +397,5 @@ def _unless(hit: Hit, finite) -> Hit:
         distance=jnp.where(finite, hit.distance, 0).astype(dtype),
         normal=jnp.where(finite, hit.normal, jnp.zeros(3, dtype)),
         covariance=jnp.where(finite, hit.covariance, jnp.zeros((3, 3), dtype)),
-        status=jnp.where(finite, hit.status, Status.NOT_FINITE).astype(jnp.int32),
+        status=jnp.where(finite, hit.status, PointingStatus.NOT_FINITE).astype(jnp.int32),
     )

@@ -41,7 +41,7 @@ from ..geometry._pose import Pose, observations, transform
 from ..geometry._validate import as_camera, as_points
 from ..solvers._residuals import pixel_residuals
 from ..solvers._status import Status
-from ._bench import Polyhedron
+from ._polyhedron import Polyhedron
 
 __all__ = [
     "Hypothesis",

@@ -56,13 +56,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from ..solvers._status import Status
+from ..geometry._numerics import float_dtype, safe_sqrt
+from ..solvers._status import StatusCode
 
 __all__ = [
     "JOINT_NAMES",
     "JointCommand",
     "Robot",
     "RobotState",
+    "RobotStatus",
     "default_robot",
     "forward_kinematics",
     "inverse_kinematics",
@@ -71,6 +73,19 @@ __all__ = [
 
 #: Names of the four joints, in the order of a joint vector.
 JOINT_NAMES = ("x", "y", "pan", "tilt")
+
+
+class RobotStatus(StatusCode):
+    """Whether the LED tip can be brought to a target (`JointCommand.status`). `OK` and
+    `NOT_FINITE` have the values of the solvers' `Status`."""
+
+    OK = 0, "the tip reaches the target within the joint limits"
+    NOT_FINITE = 11, "non-finite values in the input"
+    UNREACHABLE = (
+        14,
+        "the target is outside the robot's workspace: no joint values put the shank tip there",
+    )
+    JOINT_LIMITS = 15, "the shank tip reaches the target only with joints outside their limits"
 
 
 class Robot(NamedTuple):
@@ -120,7 +135,7 @@ class JointCommand(NamedTuple):
       direction (0 when none was requested).
     - `error`: `()` distance from the commanded tip to the target (mm): rounding only
       when `OK`.
-    - `status`: `()` int32 `Status`: `OK`, `UNREACHABLE` (no joint values put the tip
+    - `status`: `()` int32 `RobotStatus`: `OK`, `UNREACHABLE` (no joint values put the tip
       there: `|h - z| > L`), `JOINT_LIMITS` (only outside the limits) or `NOT_FINITE`.
     """
 
@@ -161,11 +176,6 @@ def _as_robot(robot: Robot, dtype) -> Robot:
     return r
 
 
-def _dtype(*xs):
-    dtype = jnp.result_type(*(jnp.asarray(x) for x in xs))
-    return dtype if jnp.issubdtype(dtype, jnp.inexact) else jnp.result_type(float)
-
-
 def _rz(a):
     c, s = jnp.cos(a), jnp.sin(a)
     z, o = jnp.zeros_like(a), jnp.ones_like(a)
@@ -194,7 +204,7 @@ def forward_kinematics(robot: Robot, joints: Float[ArrayLike, " 4"]) -> RobotSta
 
     **Returns:** a `RobotState` (tip, wrist, shank direction, frames), world frame.
     """
-    dtype = _dtype(joints, robot.height)
+    dtype = float_dtype(joints, robot.height)
     robot = _as_robot(robot, dtype)
     q = jnp.asarray(joints, dtype)
     if q.shape != (4,):
@@ -225,11 +235,6 @@ def _wrap(a):
     return jnp.pi - jnp.mod(jnp.pi - a, 2 * jnp.pi)
 
 
-def _safe_sqrt(x):
-    ok = x > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
-
-
 def inverse_kinematics(
     robot: Robot,
     target: Float[ArrayLike, " 3"],
@@ -258,7 +263,7 @@ def inverse_kinematics(
 
     **Returns:** a `JointCommand` (joints, approach angle, tip error, status).
     """
-    dtype = _dtype(target, robot.height)
+    dtype = float_dtype(target, robot.height)
     robot = _as_robot(robot, dtype)
     target = jnp.asarray(target, dtype)
     if target.shape != (3,):
@@ -276,7 +281,7 @@ def inverse_kinematics(
     cos_t = (h - p[2]) / L
     reachable = jnp.abs(cos_t) <= 1
     cos_t = jnp.clip(cos_t, -1, 1)
-    sin_t = _safe_sqrt(1 - cos_t * cos_t)
+    sin_t = safe_sqrt(1 - cos_t * cos_t)
     theta = jnp.arctan2(sin_t, cos_t)
     radius = L * sin_t
 
@@ -323,8 +328,8 @@ def inverse_kinematics(
     angle = jnp.where(a_norm > 0, jnp.arccos(cos_app), 0)
     status = jnp.select(
         [~finite, ~reachable, ~jnp.any(within)],
-        [Status.NOT_FINITE, Status.UNREACHABLE, Status.JOINT_LIMITS],
-        Status.OK,
+        [RobotStatus.NOT_FINITE, RobotStatus.UNREACHABLE, RobotStatus.JOINT_LIMITS],
+        RobotStatus.OK,
     ).astype(jnp.int32)
     return JointCommand(joints, jax.lax.stop_gradient(angle), error, status)
 
@@ -341,8 +346,8 @@ def joint_command(
     **Returns:** numpy `(4,)` `(x, y, pan, tilt)` in mm, mm, rad, rad (float64).
 
     **Raises:** `ValueError` naming `target` when it is not a finite 3-vector, is out of
-    the robot's reach (`Status.UNREACHABLE`), or is reachable only outside the joint
-    limits (`Status.JOINT_LIMITS`; the message says whether the tilt or the carriage and
+    the robot's reach (`RobotStatus.UNREACHABLE`), or is reachable only outside the joint
+    limits (`RobotStatus.JOINT_LIMITS`; the message says whether the tilt or the carriage and
     pan are the limit); naming `approach` for a bad approach vector.
     """
     t = np.asarray(target, dtype=np.float64)
@@ -356,16 +361,16 @@ def joint_command(
     r = Robot(*(np.asarray(x, np.float64) for x in robot))
     with jax.enable_x64(True):
         out = _ik_jit(r, t, a)
-        status = Status(int(out.status))
+        status = RobotStatus(int(out.status))
         joints = np.asarray(out.joints, np.float64)
-    if status == Status.UNREACHABLE:
+    if status == RobotStatus.UNREACHABLE:
         local = r.base_R.T @ (t - r.base_t)
         lo_z, hi_z = float(r.height - r.shank), float(r.height + r.shank)
         raise ValueError(
             f"target {np.round(t, 3).tolist()} is out of the robot's reach: the tip height "
             f"{local[2]:.1f} mm (base frame) is outside [{lo_z:.1f}, {hi_z:.1f}] mm"
         )
-    if status == Status.JOINT_LIMITS:
+    if status == RobotStatus.JOINT_LIMITS:
         local = r.base_R.T @ (t - r.base_t)
         tilt = math.degrees(math.acos(float(np.clip((r.height - local[2]) / r.shank, -1, 1))))
         lo, hi = np.degrees(r.lower[3]), np.degrees(r.upper[3])

@@ -1,5 +1,6 @@
 """Layer 7, the command line `jaxpose` (`reproduce`, `bench`, `solve`, `point`) and its problem
 files.
 """
+
 from ._main import build_parser as build_parser
 from ._main import main as main

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._numerics import adjugate3, as_float, det3, safe_norm, safe_normalize
 from ._validate import as_dist_coeffs
 
 __all__ = [
@@ -41,43 +42,9 @@ __all__ = [
 # --------------------------------------------------------------------------- helpers
 
 
-def _as_float(*xs):
-    """Convert to jnp arrays of one common inexact dtype (ints -> JAX's default float)."""
-    arrays = [jnp.asarray(x) for x in xs]
-    dtype = jnp.result_type(*arrays)
-    if not jnp.issubdtype(dtype, jnp.inexact):
-        dtype = jnp.result_type(float)
-    return [a.astype(dtype) for a in arrays]
-
-
-def _safe_norm(x, axis=-1, keepdims=False):
-    """Euclidean norm whose value and gradient are finite (0) at the origin."""
-    sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
-    positive = sq > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, sq, 1)), 0)
-
-
-def _safe_normalize(x, axis=-1):
-    """`x / ||x||` along `axis`; a zero vector stays the zero vector (finite gradient)."""
-    n = _safe_norm(x, axis=axis, keepdims=True)
-    return x / jnp.where(n > 0, n, 1)
-
-
 def _sign(x):
     """Sign that is never zero: +1 for `x >= 0`, -1 otherwise (no gradient)."""
     return jnp.where(x < 0, -1, 1).astype(x.dtype)
-
-
-def _adjugate_det(M):
-    """Adjugate and determinant of a 3x3 matrix: `M @ adj(M) = det(M) I`.
-
-    The columns of `adj(M)` are the cross products of the rows of `M`
-    (`m2 x m3, m3 x m1, m1 x m2`); no division, so exact-singular `M` is harmless.
-    """
-    m1, m2, m3 = M[0], M[1], M[2]
-    adj = jnp.stack([jnp.cross(m2, m3), jnp.cross(m3, m1), jnp.cross(m1, m2)], axis=1)
-    det = jnp.dot(m1, adj[:, 0])
-    return adj, det
 
 
 # --------------------------------------------------------------------------- building
@@ -98,10 +65,10 @@ def camera_matrix(K, R=None, t=None):
 
     `C`, shape (3, 4), in the common floating dtype of the inputs.
     """
-    (K,) = _as_float(K)
+    K = as_float(K)
     R = jnp.eye(3, dtype=K.dtype) if R is None else R
     t = jnp.zeros(3, dtype=K.dtype) if t is None else t
-    K, R, t = _as_float(K, R, t)
+    K, R, t = as_float(K, R, t)
     return K @ jnp.concatenate([R, t.reshape(3, 1)], axis=1)
 
 
@@ -119,11 +86,11 @@ def camera_centre(C):
     `o`, shape (3,). Placeholder: the zero vector when `M` is numerically singular,
     `|det M| <= eps ||m1|| ||m2|| ||m3||` (a camera with its centre at infinity).
     """
-    (C,) = _as_float(C)
+    C = as_float(C)
     M = C[:, :3]
-    adj, det = _adjugate_det(M)
+    adj, det = adjugate3(M), det3(M)
     # Hadamard: |det M| <= ||m1|| ||m2|| ||m3||; a ratio below eps is numerically singular.
-    bound = _safe_norm(M[0]) * _safe_norm(M[1]) * _safe_norm(M[2])
+    bound = safe_norm(M[0]) * safe_norm(M[1]) * safe_norm(M[2])
     ok = jnp.abs(det) > jnp.finfo(C.dtype).eps * bound
     centre = -(adj @ C[:, 3]) / jnp.where(ok, det, 1)
     return jnp.where(ok, centre, 0)
@@ -146,10 +113,10 @@ def normalize_camera(C):
     `C'`, shape (3, 4). Placeholder: `C` itself (sign-corrected) when `m3 = 0`;
     a zero determinant counts as positive.
     """
-    (C,) = _as_float(C)
+    C = as_float(C)
     M = C[:, :3]
-    _, det = _adjugate_det(M)
-    n3 = _safe_norm(M[2])
+    det = det3(M)
+    n3 = safe_norm(M[2])
     return C * (_sign(det) / jnp.where(n3 > 0, n3, 1))
 
 
@@ -183,12 +150,12 @@ def decompose_camera(C):
     zero rows of the Gram-Schmidt pass stay zero, `K[2,2]` is forced to 1 when
     `||m3|| = 0`, and `centre` and `t` are the zero vector when `M` is singular.
     """
-    (C,) = _as_float(C)
+    C = as_float(C)
     M = C[:, :3]
-    _, det = _adjugate_det(M)
+    det = det3(M)
     sM = M * _sign(det)
-    r3 = _safe_normalize(sM[2])
-    r2 = _safe_normalize(sM[1] - jnp.dot(sM[1], r3) * r3)
+    r3 = safe_normalize(sM[2])
+    r2 = safe_normalize(sM[1] - jnp.dot(sM[1], r3) * r3)
     r1 = jnp.cross(r2, r3)
     R = jnp.stack([r1, r2, r3])
     Kt = jnp.triu(sM @ R.T)
@@ -249,7 +216,7 @@ def project(C, points):
     `1 / eps`, far off the image, so its residual is huge but finite; the placeholder
     carries no gradient. The camera centre itself maps to (0, 0).
     """
-    C, points = _as_float(C, points)
+    C, points = as_float(C, points)
     return _divide_w(_homogeneous(C, points))
 
 
@@ -273,11 +240,11 @@ def project_with_depth(C, points):
     focal plane, where `depth` is 0). If `m3 = 0` the depth is the unnormalised
     `c3 . [p 1]` (i.e. 0 when also `c34 = 0`).
     """
-    C, points = _as_float(C, points)
+    C, points = as_float(C, points)
     h = _homogeneous(C, points)
     uv = _divide_w(h)
-    _, det = _adjugate_det(C[:, :3])
-    n3 = _safe_norm(C[2, :3])
+    det = det3(C[:, :3])
+    n3 = safe_norm(C[2, :3])
     depth = h[:, 2] * (_sign(det) / jnp.where(n3 > 0, n3, 1))
     return uv, depth
 
@@ -303,7 +270,7 @@ def ray_planes(C, uv):
 
     `(n1, a1, n2, a2)`, shapes (n, 3), (n,), (n, 3), (n,).
     """
-    C, uv = _as_float(C, uv)
+    C, uv = as_float(C, uv)
     u = uv[:, 0:1]
     v = uv[:, 1:2]
     p1 = C[0][None, :] - u * C[2][None, :]
@@ -331,10 +298,10 @@ def backproject(C, uv):
     `centre` as `camera_centre` (zero), and a direction whose `adj(M) [u v 1]` vanishes
     is the zero vector.
     """
-    C, uv = _as_float(C, uv)
-    adj, _ = _adjugate_det(C[:, :3])
+    C, uv = as_float(C, uv)
+    adj = adjugate3(C[:, :3])
     x = jnp.concatenate([uv, jnp.ones_like(uv[:, :1])], axis=1)
-    directions = _safe_normalize(x @ adj.T)
+    directions = safe_normalize(x @ adj.T)
     return camera_centre(C), directions
 
 

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._camera import _as_float, _safe_norm, backproject, project
+from ._camera import backproject, project
+from ._numerics import as_float, masked_mean, safe_norm, safe_sqrt
+from ._pose import Pose, transform
 
 __all__ = [
     "pose_error",
@@ -23,20 +25,6 @@ __all__ = [
     "reprojection_residuals",
     "reprojection_rms",
 ]
-
-
-def _transform(R, t, model):
-    """World points `p_i = R m_i + t`, shape (n, 3)."""
-    return model @ R.T + t.reshape(1, 3)
-
-
-def _masked_mean(values, mask):
-    """Mean of `values` (n,) over `mask` (n,) bool or None; 0 when nothing is selected."""
-    if mask is None:
-        return jnp.sum(values) / max(values.shape[0], 1)
-    weights = jnp.asarray(mask).astype(values.dtype)
-    total = jnp.sum(weights)
-    return jnp.sum(weights * values) / jnp.maximum(total, 1)
 
 
 def reprojection_residuals(C, R, t, model, image):
@@ -57,8 +45,8 @@ def reprojection_residuals(C, R, t, model, image):
     projects to the finite placeholder of `jaxpose._camera.project` (about `1 / eps`
     pixels), so its residual is huge but finite.
     """
-    C, R, t, model, image = _as_float(C, R, t, model, image)
-    return project(C, _transform(R, t, model)) - image
+    C, R, t, model, image = as_float(C, R, t, model, image)
+    return project(C, transform(Pose(R, t.reshape(3)), model)) - image
 
 
 def reprojection_rms(C, R, t, model, image, mask=None):
@@ -82,9 +70,7 @@ def reprojection_rms(C, R, t, model, image, mask=None):
     (not NaN).
     """
     r = reprojection_residuals(C, R, t, model, image)
-    mean_sq = _masked_mean(jnp.sum(r * r, axis=1), mask)
-    positive = mean_sq > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, mean_sq, 1)), 0)
+    return safe_sqrt(masked_mean(jnp.sum(r * r, axis=1), mask))
 
 
 def pose_error_per_point(C, R, t, model, image):
@@ -120,12 +106,12 @@ def pose_error_per_point(C, R, t, model, image):
     `jaxpose._camera.backproject`; a zero ray direction counts as perpendicular, giving
     `E_i = ||p_i - o||` (never a deceptive 0 unless `p_i = o`).
     """
-    C, R, t, model, image = _as_float(C, R, t, model, image)
+    C, R, t, model, image = as_float(C, R, t, model, image)
     centre, rays = backproject(C, image)
-    v = _transform(R, t, model) - centre[None, :]
-    sideways = _safe_norm(jnp.cross(v, rays), axis=1)
+    v = transform(Pose(R, t.reshape(3)), model) - centre[None, :]
+    sideways = safe_norm(jnp.cross(v, rays), axis=1)
     ahead = jnp.sum(v * rays, axis=1) > 0
-    return jnp.where(ahead, sideways, _safe_norm(v, axis=1))
+    return jnp.where(ahead, sideways, safe_norm(v, axis=1))
 
 
 def pose_error(C, R, t, model, image, mask=None):
@@ -147,4 +133,4 @@ def pose_error(C, R, t, model, image, mask=None):
 
     Scalar `E` (model units); 0 for an all-False mask; gradient finite (0 terms) at an exact pose.
     """
-    return _masked_mean(pose_error_per_point(C, R, t, model, image), mask)
+    return masked_mean(pose_error_per_point(C, R, t, model, image), mask)

@@ -4,7 +4,8 @@ Every function takes **one** rotation (no batch axis; `jax.vmap` for many), foll
 floating dtype of its input (float32 or float64; integer input is promoted to the default
 float dtype), runs under `jit`/`vmap`/`grad`, and gives finite values *and* finite
 derivatives (`jax.grad`, `jax.jacfwd`, `jax.jacrev`) at the singular points of each
-parameterisation: a rotation of angle exactly `0`, exactly `pi`, and pitch `+-90 deg`.
+parameterisation: a rotation of angle exactly `0` and exactly `pi`. Roll-pitch-yaw
+angles live in `jaxpose.geometry._euler`.
 
 Conventions used throughout:
 
@@ -17,10 +18,6 @@ Conventions used throughout:
   `(q1, q2, q3) = sin(theta/2) u` (A.12); `q` and `-q` are the same rotation; the
   functions returning a quaternion return it with `q0 >= 0`. Products are Hamilton
   products, `quaternion_to_matrix(quaternion_multiply(p, q)) == P @ Q`.
-- Roll-pitch-yaw ("nautical angles", A.2): `rpy = (roll, pitch, yaw)`, the angles of the
-  rotations about `x`, `y` and `z`, and `R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`: rotations
-  about `z`, then the new `y`, then the newer `x` of the current frame (equivalently
-  `scipy.spatial.transform.Rotation.from_euler("ZYX", [yaw, pitch, roll])`).
 
 Numerical technique (after jaxlie): every formula with a removable singularity is split
 into a Taylor branch, used below a dtype-dependent threshold, and the closed form, and the
@@ -34,7 +31,9 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Float
+
+from ._numerics import as_float, safe_norm, safe_normalize, safe_sqrt
 
 # Shape-annotated aliases (one rotation, no batch axis).
 Vector3 = Float[Array, "3"]
@@ -44,14 +43,12 @@ QuaternionLike = Float[ArrayLike, "4"]
 Matrix3 = Float[Array, "3 3"]
 Matrix3Like = Float[ArrayLike, "3 3"]
 Scalar = Float[Array, ""]
-BoolScalar = Bool[Array, ""]
 
 __all__ = [
     "compose",
     "hat",
     "matrix_to_quaternion",
     "matrix_to_rotvec",
-    "matrix_to_rpy",
     "project_to_rotation",
     "quaternion_conjugate",
     "quaternion_multiply",
@@ -62,21 +59,12 @@ __all__ = [
     "rotation_distance",
     "rotvec_to_matrix",
     "rotvec_to_quaternion",
-    "rpy_to_matrix",
 ]
 
 
 # --------------------------------------------------------------------------------------
 # Private helpers
 # --------------------------------------------------------------------------------------
-
-
-def _as_float(x: ArrayLike) -> Array:
-    """`x` as a JAX array with a floating dtype (kept if floating, else the default)."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
 
 
 def _taylor_threshold(dtype) -> float:
@@ -107,36 +95,6 @@ def _cos_of_sq(x2: Array) -> Array:
     return jnp.where(small, taylor, jnp.cos(x))
 
 
-def _safe_norm(v: Array) -> Array:
-    """Euclidean norm whose derivative at `v = 0` is `0` instead of `NaN`."""
-    n2 = jnp.dot(v, v)
-    positive = n2 > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, n2, 1.0)), 0.0)
-
-
-def _safe_normalize(v: Array, fallback: Array) -> Array:
-    """`v / |v|`, or `fallback` when `v` is exactly zero; finite derivatives everywhere."""
-    n2 = jnp.dot(v, v)
-    positive = n2 > 0
-    return jnp.where(positive, v / jnp.sqrt(jnp.where(positive, n2, 1.0)), fallback)
-
-
-def _safe_atan2(y: Array, x: Array) -> Array:
-    """`atan2(y, x)`, but `0` with derivative `0` (not `NaN`) where `x^2 + y^2` is `0`."""
-    degenerate = (x * x + y * y) == 0
-    return jnp.arctan2(jnp.where(degenerate, 0.0, y), jnp.where(degenerate, 1.0, x))
-
-
-def _wrap_angle(a: Array) -> Array:
-    """Map an angle in `[-pi, pi]` to `(-pi, pi]`."""
-    return jnp.where(a <= -jnp.pi, a + 2.0 * jnp.pi, a)
-
-
-def _shift_by_pi(a: Array) -> Array:
-    """`a + pi` wrapped to `(-pi, pi]`, for `a` in `(-pi, pi]`."""
-    return _wrap_angle(jnp.where(a > 0, a - jnp.pi, a + jnp.pi))
-
-
 # --------------------------------------------------------------------------------------
 # Cross-product matrix and composition
 # --------------------------------------------------------------------------------------
@@ -156,7 +114,7 @@ def hat(v: Vector3Like) -> Matrix3:
 
     The skew-symmetric matrix `X(v)`, shape `(3, 3)`, same dtype as `v`.
     """
-    v = _as_float(v)
+    v = as_float(v)
     zero = jnp.zeros_like(v[0])
     return jnp.stack(
         [
@@ -182,7 +140,7 @@ def compose(R1: Matrix3Like, R2: Matrix3Like) -> Matrix3:
 
     `R1 @ R2`, shape `(3, 3)`.
     """
-    return _as_float(R1) @ _as_float(R2)
+    return as_float(R1) @ as_float(R2)
 
 
 # --------------------------------------------------------------------------------------
@@ -211,7 +169,7 @@ def rotvec_to_matrix(r: Vector3Like) -> Matrix3:
 
     The rotation matrix `R`, shape `(3, 3)`.
     """
-    r = _as_float(r)
+    r = as_float(r)
     theta2 = jnp.dot(r, r)
     a = _sinc_of_sq(theta2)
     b = 0.5 * _sinc_of_sq(0.25 * theta2) ** 2
@@ -266,7 +224,7 @@ def quaternion_to_matrix(q: QuaternionLike) -> Matrix3:
 
     The rotation matrix `R`, shape `(3, 3)`; `q` and `-q` give the same `R`.
     """
-    q = _as_float(q)
+    q = as_float(q)
     n2 = jnp.dot(q, q)
     positive = n2 > 0
     s = jnp.where(positive, 2.0 / jnp.where(positive, n2, 1.0), 0.0)
@@ -306,7 +264,7 @@ def matrix_to_quaternion(R: Matrix3Like) -> QuaternionArray:
 
     The unit quaternion `(q0, q1, q2, q3)`, shape `(4,)`, with `q0 >= 0`.
     """
-    R = _as_float(R)
+    R = as_float(R)
     r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
     r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
     r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
@@ -357,10 +315,9 @@ def quaternion_vector_to_matrix(qv: Vector3Like) -> Matrix3:
 
     The rotation matrix `R`, shape `(3, 3)`.
     """
-    qv = _as_float(qv)
+    qv = as_float(qv)
     one_minus = 1.0 - jnp.dot(qv, qv)
-    inside = one_minus > 0
-    q0 = jnp.where(inside, jnp.sqrt(jnp.where(inside, one_minus, 1.0)), 0.0)
+    q0 = safe_sqrt(one_minus)
     # quaternion_to_matrix normalises: |q| = 1 inside, and q = (0, qv) -> (0, qv/|qv|).
     return quaternion_to_matrix(jnp.concatenate([q0[None], qv]))
 
@@ -381,7 +338,7 @@ def rotvec_to_quaternion(r: Vector3Like) -> QuaternionArray:
 
     The unit quaternion `(q0, q1, q2, q3)`, shape `(4,)`.
     """
-    r = _as_float(r)
+    r = as_float(r)
     half2 = 0.25 * jnp.dot(r, r)
     q0 = _cos_of_sq(half2)
     qv = 0.5 * _sinc_of_sq(half2) * r
@@ -405,9 +362,9 @@ def quaternion_to_rotvec(q: QuaternionLike) -> Vector3:
 
     The rotation vector `r = theta u`, shape `(3,)`, with `0 <= theta <= pi`.
     """
-    q = _as_float(q)
+    q = as_float(q)
     identity = jnp.array([1.0, 0.0, 0.0, 0.0], dtype=q.dtype)
-    q = _safe_normalize(q, identity)
+    q = safe_normalize(q, fallback=identity)
     return _unit_quaternion_to_rotvec(jnp.where(q[0] < 0, -q, q))
 
 
@@ -441,8 +398,8 @@ def quaternion_multiply(p: QuaternionLike, q: QuaternionLike) -> QuaternionArray
 
     The product, shape `(4,)` (unit if both are unit; not re-signed).
     """
-    p = _as_float(p)
-    q = _as_float(q)
+    p = as_float(p)
+    q = as_float(q)
     p0, pv = p[0], p[1:]
     q0, qv = q[0], q[1:]
     w = p0 * q0 - jnp.dot(pv, qv)
@@ -461,118 +418,8 @@ def quaternion_conjugate(q: QuaternionLike) -> QuaternionArray:
 
     The conjugate quaternion, shape `(4,)`.
     """
-    q = _as_float(q)
+    q = as_float(q)
     return jnp.concatenate([q[:1], -q[1:]])
-
-
-# --------------------------------------------------------------------------------------
-# Roll-pitch-yaw
-# --------------------------------------------------------------------------------------
-
-
-def rpy_to_matrix(rpy: Vector3Like) -> Matrix3:
-    r"""Rotation matrix of roll-pitch-yaw ("nautical") angles (paper A.2).
-
-    `rpy = (roll, pitch, yaw)` are the angles about `x`, `y` and `z`, and
-
-    $$R = R_z(\mathrm{yaw})\, R_y(\mathrm{pitch})\, R_x(\mathrm{roll}) =
-    \begin{bmatrix}
-    c_y c_p & c_y s_p s_r - s_y c_r & c_y s_p c_r + s_y s_r\\
-    s_y c_p & s_y s_p s_r + c_y c_r & s_y s_p c_r - c_y s_r\\
-    -s_p & c_p s_r & c_p c_r
-    \end{bmatrix}:$$
-
-    a rotation about `z`, then about the new `y`, then about the newer `x` (each
-    expressed in the current frame, hence multiplied on the right, A.1.1).
-
-    **Arguments:**
-
-    - `rpy`: `(roll, pitch, yaw)`, shape `(3,)`, radians.
-
-    **Returns:**
-
-    The rotation matrix `R`, shape `(3, 3)`.
-    """
-    rpy = _as_float(rpy)
-    cr, sr = jnp.cos(rpy[0]), jnp.sin(rpy[0])
-    cp, sp = jnp.cos(rpy[1]), jnp.sin(rpy[1])
-    cy, sy = jnp.cos(rpy[2]), jnp.sin(rpy[2])
-    return jnp.stack(
-        [
-            jnp.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr]),
-            jnp.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr]),
-            jnp.stack([-sp, cp * sr, cp * cr]),
-        ]
-    )
-
-
-def _rpy_singular_tolerance(dtype) -> float:
-    """Gimbal-lock tolerance on `|cos(pitch)|`: `16 eps` (3.6e-15 f64, 1.9e-6 f32).
-
-    Small enough that choosing `roll = 0` inside it moves `R` by `O(tol)` only, large
-    enough that rounding in a matrix built at pitch = +-90 deg still counts as singular.
-    """
-    return 16.0 * float(jnp.finfo(dtype).eps)
-
-
-def matrix_to_rpy(
-    R: Matrix3Like,
-) -> tuple[Vector3, Vector3, BoolScalar]:
-    r"""Both roll-pitch-yaw solutions of a rotation matrix, and the gimbal-lock flag.
-
-    Inverse of `rpy_to_matrix` (`R = Rz(yaw) Ry(pitch) Rx(roll)`). Away from gimbal lock
-    there are exactly two solutions:
-
-    - `rpy_a`: `pitch` in `[-pi/2, pi/2]` (`cos(pitch) >= 0`),
-      `yaw = atan2(R10, R00)`;
-    - `rpy_b`: `pitch' = pi - pitch`, `roll' = roll + pi`, `yaw' = yaw + pi`.
-
-    All angles are wrapped to `(-pi, pi]`. Given the yaw, the other two angles are read
-    from `Rz(yaw)^T R = Ry(pitch) Rx(roll)`, which keeps the reconstruction accurate to
-    rounding even close to gimbal lock:
-    `roll = atan2(sy R02 - cy R12, cy R11 - sy R01)`,
-    `pitch = atan2(-R20, |cy R00 + sy R10|)`.
-
-    `singular` is `True` when `|cos(pitch)| = sqrt(R00^2 + R10^2)` is below a
-    dtype-dependent tolerance (`16 eps`). Then only `yaw - roll` (pitch = +90 deg) or
-    `yaw + roll` (pitch = -90 deg) is determined; both solutions take `roll = 0` and put
-    the whole in-plane rotation in `yaw = atan2(-R01, R11)` (so the two solutions then
-    differ only by pitch, `pitch' = pi - pitch`, equal at exactly +-90 deg). Values and
-    derivatives are finite there. Forcing `roll = 0` inside the tolerance band moves the
-    reconstruction by at most about `2 tol` (`7e-15` in float64, `4e-6` in float32);
-    outside it both solutions reproduce `R` to rounding, however close to gimbal lock
-    (where the individual angles, not the matrix, become ill-conditioned: `~eps/cos(pitch)`).
-
-    **Arguments:**
-
-    - `R`: rotation matrix, shape `(3, 3)`.
-
-    **Returns:**
-
-    A tuple `(rpy_a, rpy_b, singular)`: two arrays `(roll, pitch, yaw)` of shape `(3,)`,
-    each reproducing `R`, and a boolean scalar.
-    """
-    R = _as_float(R)
-    tol = _rpy_singular_tolerance(R.dtype)
-    cos_pitch_sq = R[0, 0] ** 2 + R[1, 0] ** 2
-    singular = cos_pitch_sq < tol * tol
-
-    # Regular: yaw = atan2(R10, R00) (|(R10, R00)| = cos(pitch) >= tol, never degenerate).
-    # Gimbal lock: roll = 0 and yaw = atan2(-R01, R11).
-    yaw = _safe_atan2(jnp.where(singular, -R[0, 1], R[1, 0]), jnp.where(singular, R[1, 1], R[0, 0]))
-    yaw = _wrap_angle(yaw)
-    cy, sy = jnp.cos(yaw), jnp.sin(yaw)
-
-    roll = _safe_atan2(sy * R[0, 2] - cy * R[1, 2], cy * R[1, 1] - sy * R[0, 1])
-    roll = jnp.where(singular, jnp.zeros_like(roll), _wrap_angle(roll))
-    pitch = _safe_atan2(-R[2, 0], jnp.abs(cy * R[0, 0] + sy * R[1, 0]))
-
-    rpy_a = jnp.stack([roll, pitch, yaw])
-    pitch_b = _wrap_angle(jnp.where(pitch >= 0, jnp.pi - pitch, -jnp.pi - pitch))
-    roll_b = jnp.where(singular, roll, _shift_by_pi(roll))
-    yaw_b = jnp.where(singular, yaw, _shift_by_pi(yaw))
-    rpy_b = jnp.stack([roll_b, pitch_b, yaw_b])
-    return rpy_a, rpy_b, singular
 
 
 # --------------------------------------------------------------------------------------
@@ -598,7 +445,7 @@ def rotation_angle(R: Matrix3Like) -> Scalar:
     The angle `theta`, a scalar, radians.
     """
     q = matrix_to_quaternion(R)
-    return 2.0 * jnp.arctan2(_safe_norm(q[1:]), q[0])
+    return 2.0 * jnp.arctan2(safe_norm(q[1:]), q[0])
 
 
 def rotation_distance(R1: Matrix3Like, R2: Matrix3Like) -> Scalar:
@@ -615,7 +462,7 @@ def rotation_distance(R1: Matrix3Like, R2: Matrix3Like) -> Scalar:
 
     The angle between them, a scalar, radians.
     """
-    return rotation_angle(_as_float(R1).T @ _as_float(R2))
+    return rotation_angle(as_float(R1).T @ as_float(R2))
 
 
 def _polar_factor(M: Array) -> tuple[Array, Array, Array]:
@@ -670,4 +517,4 @@ def project_to_rotation(M: Matrix3Like) -> Matrix3:
 
     The rotation `R`, shape `(3, 3)`, `R^T R = I`, `det R = +1`.
     """
-    return _project_to_rotation(_as_float(M))
+    return _project_to_rotation(as_float(M))

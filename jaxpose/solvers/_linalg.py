@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Float
 
-__all__ = ["NormalCholesky", "cholesky_solve"]
+__all__ = ["NormalCholesky", "cholesky_solve", "symmetric_pinv"]
 
 
 def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
@@ -110,3 +110,34 @@ class NormalCholesky(lx.AbstractLinearSolver):
 
     def assume_full_rank(self):
         return True
+
+
+def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
+    """Pseudo-inverse of a small symmetric matrix, finite for every input.
+
+    The matrix is equilibrated by its diagonal (`D A D`, `D = diag(|A_ii|)^(-1/2)`), then
+    eigen-decomposed; eigenvalues of magnitude at most `rcond` times the largest are
+    dropped. The derivative is `-A^+ dA A^+` (exact where `A` is invertible, finite
+    everywhere, unlike the eigen-decomposition's own at repeated eigenvalues).
+    Returns `(A^+, rank, positive_definite)`.
+    """
+    A_in = A
+    A = jax.lax.stop_gradient(A)
+    dtype = A.dtype
+    k = A.shape[0]
+    rcond = 64 * float(jnp.finfo(dtype).eps) if rcond is None else rcond
+    diag = jnp.abs(jnp.diagonal(A))
+    ok = diag > 0
+    d = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, diag, 1)), 0)
+    Ae = A * d[:, None] * d[None, :]
+    Ae = 0.5 * (Ae + Ae.T)
+    lam, V = jnp.linalg.eigh(Ae)
+    cutoff = rcond * jnp.max(jnp.abs(lam))
+    keep = (jnp.abs(lam) > cutoff) & (jnp.abs(lam) > jnp.finfo(dtype).tiny)
+    inv_lam = jnp.where(keep, 1 / jnp.where(keep, lam, 1), 0)
+    pinv = (V * inv_lam[None, :]) @ V.T
+    pinv = pinv * d[:, None] * d[None, :]
+    pinv = pinv - pinv @ (A_in - A) @ pinv
+    rank = jnp.sum(keep).astype(jnp.int32)
+    positive = jnp.all(jnp.isfinite(lam)) & (rank == k) & jnp.all(lam > 0)
+    return pinv, rank, positive

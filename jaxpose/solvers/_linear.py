@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from ..geometry._numerics import by_precision, masked_centroid
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import rotvec_to_matrix
 from ._linalg import cholesky_solve
@@ -56,24 +57,19 @@ class LinearResult(NamedTuple):
     status: Int[Array, ""]
 
 
-def _centroid(world, mask):
-    w = mask.astype(world.dtype)
-    return jnp.sum(world * w[:, None], axis=0) / jnp.maximum(jnp.sum(w), 1)
-
-
 def default_tol(dtype) -> float:
     """Convergence tolerance on the last step (rad + relative translation) for a dtype.
 
     Near the optimum the iteration converges quadratically (Gauss-Newton with a small
     residual), so a last step of `1e-4` leaves the pose about `1e-8` from the fixed point.
     """
-    return 1e-4 if jnp.finfo(dtype).bits >= 64 else 1e-3
+    return by_precision(dtype, f64=1e-4, f32=1e-3)
 
 
 def linear_step(pose: Pose, obs: Observations, weighting: str = "depth"):
     """One small-movement step (Eq. 7) from `pose`. Returns `(new_pose, step_size)`."""
     world = transform(pose, obs.model)
-    centre = _centroid(world, obs.mask)
+    centre = masked_centroid(world, obs.mask)
     normals = obs.planes[..., :3]  # (n, 2, 3)
     rhs = -plane_residuals(world, obs)  # (n, 2)
     if weighting == "depth":

@@ -3,7 +3,8 @@
 Parameters, as in the paper, are the quaternion's vector part and a translation,
 `y = (q1, q2, q3, d1, d2, d3)`, with `q0 = sqrt(1 - |q|^2)` recovered from the unit
 norm. The paper re-expresses the quaternion from the current rotation matrix at each
-iteration; we use the equivalent local chart around the starting pose `(R0, t0)`:
+iteration; we use the equivalent local chart around the starting pose `(R0, t0)`
+(`jaxpose.solvers._chart`):
 
     p_i = R(q) (R0 m_i + t0 - c0) + c0 + L d,
 
@@ -30,8 +31,10 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
+from ..geometry._numerics import by_precision
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import quaternion_vector_to_matrix
+from ._chart import chart_at, chart_points, chart_pose
 from ._linalg import NormalCholesky
 from ._residuals import in_front, pixel_residuals, rms, rounding_level
 from ._status import Status
@@ -98,15 +101,11 @@ def _solver(rtol, atol):
     return _StepLimit(lm, rtol, atol, lm.norm)
 
 
-def _chart(y, base_world, centre, length):
-    """World points of the local parameters `y` (see the module docstring)."""
-    Rq = quaternion_vector_to_matrix(y[:3])
-    return (base_world - centre[None, :]) @ Rq.T + (centre + length * y[3:])[None, :]
-
-
 def _residual(y, args):
-    obs, base_world, centre, length = args
-    return pixel_residuals(_chart(y, base_world, centre, length), obs).reshape(-1)
+    """Eq. 8's pixel residuals at the chart coordinates `y` (see the module docstring)."""
+    obs, chart, base_world = args
+    world = chart_points(y, chart, base_world, quaternion_vector_to_matrix)
+    return pixel_residuals(world, obs).reshape(-1)
 
 
 def nonlinear(
@@ -134,22 +133,19 @@ def nonlinear(
     - `step_limit`: a budget below `max_steps` that may be traced (one compiled solver
       for several budgets); `None`: `max_steps`.
 
-    **Returns:** a `NonlinearResult` with the pose `R = R(q) R0`, `t = R(q)(t0 - c0) + c0 + L d`.
+    **Returns:** a `NonlinearResult` with the pose `R = R(q) R0`, `t = R(q)(t0 - c0) + c0 + L d`
+    (exactly the start at `y = 0`).
     """
     dtype = obs.camera.dtype
-    wide = jnp.finfo(dtype).bits >= 64
+    wide = by_precision(dtype, f64=True, f32=False)
     rtol = (1e-8 if wide else 1e-5) if rtol is None else rtol
     atol = (1e-10 if wide else 1e-6) if atol is None else atol
     gtol = (1e-6 if wide else 1e-2) if gtol is None else gtol
     tiny = jnp.finfo(dtype).tiny ** 0.5
     init = Pose(jnp.asarray(init.R, dtype), jnp.asarray(init.t, dtype))
     base = transform(init, obs.model)
-    w = obs.mask.astype(dtype)
-    count = jnp.maximum(jnp.sum(w), 1)
-    centre = jnp.sum(base * w[:, None], axis=0) / count
-    length = jnp.sqrt(jnp.sum(jnp.sum((base - centre[None, :]) ** 2, axis=1) * w) / count)
-    length = jnp.where(length > 0, length, 1)
-    args = (obs, base, centre, length)
+    chart = chart_at(init, obs, base)
+    args = (obs, chart, base)
 
     limit = max_steps if step_limit is None else jnp.minimum(step_limit, max_steps)
     sol = optx.least_squares(
@@ -162,8 +158,7 @@ def nonlinear(
         throw=False,
     )
     y = sol.value
-    Rq = quaternion_vector_to_matrix(y[:3])
-    pose = Pose(Rq @ init.R, Rq @ (init.t - centre) + centre + length * y[3:])
+    pose = chart_pose(y, chart, quaternion_vector_to_matrix)
     world = transform(pose, obs.model)
     error = rms(pixel_residuals(world, obs), obs.mask)
     finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t))

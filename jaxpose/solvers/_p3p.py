@@ -69,40 +69,16 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry._camera import backproject, normalize_camera
+from ..geometry._numerics import adjugate3, by_precision, det3, safe_div, safe_sqrt
+from ..geometry._rotation import hat
 from ._status import Status
 
 __all__ = ["ThreePointResult", "p3p", "three_point"]
 
 
-def _safe_sqrt(x):
-    ok = x > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
-
-
-def _safe_div(num, den):
-    ok = den != 0
-    return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
-
-
 def _unit(v):
-    return v * _safe_div(1, _safe_sqrt(jnp.sum(v * v, axis=-1, keepdims=True)))
-
-
-def _det3(A):
-    return A[0] @ jnp.cross(A[1], A[2])
-
-
-def _adj3(A):
-    """Adjugate of a 3x3 matrix (`A @ adj(A) = det(A) I`), division-free."""
-    a0, a1, a2 = A[0], A[1], A[2]
-    return jnp.stack([jnp.cross(a1, a2), jnp.cross(a2, a0), jnp.cross(a0, a1)], axis=1)
-
-
-def _skew(p):
-    z = jnp.zeros_like(p[0])
-    return jnp.stack(
-        [jnp.stack([z, -p[2], p[1]]), jnp.stack([p[2], z, -p[0]]), jnp.stack([-p[1], p[0], z])]
-    )
+    """`v / |v|` along the last axis, as `v` times the reciprocal norm; `0` at `v = 0`."""
+    return v * safe_div(1, safe_sqrt(jnp.sum(v * v, axis=-1, keepdims=True)))
 
 
 def _cubic_roots(a, b, c):
@@ -113,14 +89,14 @@ def _cubic_roots(a, b, c):
     q = 2 * a**3 / 27 - a * b / 3 + c
     disc = (q / 2) ** 2 + (p / 3) ** 3
     three = disc < 0
-    m = _safe_sqrt(-p / 3)
-    arg = jnp.clip(jnp.where(three, _safe_div(-q / 2, m**3), 0), -1, 1)
+    m = safe_sqrt(-p / 3)
+    arg = jnp.clip(jnp.where(three, safe_div(-q / 2, m**3), 0), -1, 1)
     phi = jnp.arccos(arg) / 3
     k = jnp.arange(3, dtype=a.dtype)
     trig = 2 * m * jnp.cos(phi - 2 * jnp.pi * k / 3)
-    s = _safe_sqrt(disc)
+    s = safe_sqrt(disc)
     u = jnp.cbrt(-q / 2 + jnp.where(q <= 0, s, -s))
-    one = u - _safe_div(p, 3 * u)
+    one = u - safe_div(p, 3 * u)
     x = jnp.where(three, trig, one) - a / 3
 
     def f(x):
@@ -128,7 +104,7 @@ def _cubic_roots(a, b, c):
 
     for _ in range(2):
         fx = f(x)
-        xn = x - _safe_div(fx, (3 * x + 2 * a) * x + b)
+        xn = x - safe_div(fx, (3 * x + 2 * a) * x + b)
         x = jnp.where(jnp.abs(f(xn)) < jnp.abs(fx), xn, x)
     return x
 
@@ -162,18 +138,18 @@ def _p3p(bearings, points) -> _Candidates:
     d12, d13, d23 = x[0] - x[1], x[0] - x[2], x[1] - x[2]
     a = jnp.stack([d12 @ d12, d13 @ d13, d23 @ d23])
     total = jnp.sum(a)
-    a12, a13, a23 = a * _safe_div(1, total)
+    a12, a13, a23 = a * safe_div(1, total)
     b12, b13, b23 = y[0] @ y[1], y[0] @ y[2], y[1] @ y[2]
 
     def implicit(L):
         f = _equations(L, b12, b13, b23, a12, a13, a23)
         J = sg(_equations_jacobian(L, b12, b13, b23))
-        adjJ = _adj3(J)
-        step = adjJ @ f * _safe_div(1, J[0] @ adjJ[:, 0])
+        adjJ = adjugate3(J)
+        step = adjJ @ f * safe_div(1, J[0] @ adjJ[:, 0])
         return L - (step - sg(step))  # value: the root; derivative: -J^-1 dF
 
     lam = jax.vmap(implicit)(lam0)
-    lam = lam * _safe_sqrt(total)
+    lam = lam * safe_sqrt(total)
     positive = jnp.all(lam > 0, axis=1)
 
     def frame(e1, e2):
@@ -222,7 +198,7 @@ def _depths(y, x):
     d12, d13, d23 = x[0] - x[1], x[0] - x[2], x[1] - x[2]
     a = jnp.stack([d12 @ d12, d13 @ d13, d23 @ d23])
     total = jnp.sum(a)
-    a12, a13, a23 = a * _safe_div(1, total)  # scale-free
+    a12, a13, a23 = a * safe_div(1, total)  # scale-free
     b12, b13, b23 = y[0] @ y[1], y[0] @ y[2], y[1] @ y[2]
     z, o = jnp.zeros((), dtype), jnp.ones((), dtype)
     M12 = jnp.stack([jnp.stack([o, -b12, z]), jnp.stack([-b12, o, z]), jnp.stack([z, z, z])])
@@ -240,13 +216,13 @@ def _depths(y, x):
     # e.g. an equilateral triangle seen from its axis).
     angles = jnp.arange(6, dtype=dtype) * (jnp.pi / 6)
     cs, sn = jnp.cos(angles), jnp.sin(angles)
-    F = jax.vmap(lambda c, s: _det3(c * D1 + s * D2))(cs, sn)
+    F = jax.vmap(lambda c, s: det3(c * D1 + s * D2))(cs, sn)
     kbest = jnp.argmax(jnp.abs(F))
     cb, sb = cs[kbest], sn[kbest]
     B = cb * D1 + sb * D2
     A = -sb * D1 + cb * D2
-    c0, c3 = _det3(A), F[kbest]
-    c1, c2 = jnp.trace(_adj3(A) @ B), jnp.trace(A @ _adj3(B))
+    c0, c3 = det3(A), F[kbest]
+    c1, c2 = jnp.trace(adjugate3(A) @ B), jnp.trace(A @ adjugate3(B))
     lead = jnp.where(c3 != 0, c3, jnp.finfo(dtype).tiny)
     g = _cubic_roots(c2 / lead, c1 / lead, c0 / lead)
     # A + g B = (g cb - sb) D1 + (g sb + cb) D2, normalised (g is bounded: no overflow)
@@ -254,17 +230,17 @@ def _depths(y, x):
     norm = jnp.sqrt(alpha**2 + beta**2)
     alpha, beta = alpha / norm, beta / norm
     members = alpha[:, None, None] * D1[None] + beta[:, None, None] * D2[None]
-    indefiniteness = jax.vmap(lambda D: jnp.trace(_adj3(D)) * _safe_div(1, jnp.sum(D * D)))
+    indefiniteness = jax.vmap(lambda D: jnp.trace(adjugate3(D)) * safe_div(1, jnp.sum(D * D)))
     best = jnp.argmin(indefiniteness(members))
     D0 = members[best]
     E = -beta[best] * D1 + alpha[best] * D2  # the pencil member orthogonal to D0
 
     # Split D0 into its two planes (see the module docstring).
-    adj = _adj3(D0)
+    adj = adjugate3(D0)
     k = jnp.argmin(jnp.diagonal(adj))
     akk = adj[k, k]
     indefinite = akk < 0
-    A = D0 + _skew(adj[:, k] * _safe_div(1, _safe_sqrt(-akk)))
+    A = D0 + hat(adj[:, k] * safe_div(1, safe_sqrt(-akk)))
     ij = jnp.argmax(jnp.abs(A).reshape(-1))
     normals = jnp.stack([A[:, ij % 3], A[ij // 3, :]])
     Msum = M12 + M13 + M23
@@ -276,11 +252,11 @@ def _depths(y, x):
         v = jnp.cross(n, u)
         g11, g12, g22 = u @ E @ u, u @ E @ v, v @ E @ v
         disc = g12 * g12 - g11 * g22
-        sq = _safe_sqrt(disc)
+        sq = safe_sqrt(disc)
         r1 = -g12 - jnp.where(g12 >= 0, sq, -sq)
         dirs = jnp.stack([r1 * u + g11 * v, g22 * u + r1 * v])
         q = jnp.einsum("ki,ij,kj->k", dirs, Msum, dirs)
-        lam = dirs * _safe_sqrt(_safe_div(1, q))[:, None]
+        lam = dirs * safe_sqrt(safe_div(1, q))[:, None]
         lam = jnp.where(jnp.sum(lam, axis=1, keepdims=True) < 0, -lam, lam)
         # A slightly negative discriminant is a real double root pushed off the real line
         # by noise: keep its real part as an approximate solution.
@@ -317,14 +293,14 @@ def _depths(y, x):
                     jnp.stack([z, 2 * d12 + c23 * L[2], -2 * d12 + c23 * L[1]]),
                 ]
             )
-            adjJ = _adj3(J)
-            step = adjJ @ f * _safe_div(1, J[0] @ adjJ[:, 0])
+            adjJ = adjugate3(J)
+            step = adjJ @ f * safe_div(1, J[0] @ adjJ[:, 0])
             Ln = L - step
             L = jnp.where(jnp.max(jnp.abs(residual(Ln))) < jnp.max(jnp.abs(f)), Ln, L)
         return L, jnp.max(jnp.abs(residual(L)))
 
     lam, err = jax.vmap(polish)(lam)
-    tol = 1e-6 if jnp.finfo(dtype).bits >= 64 else 1e-3
+    tol = by_precision(dtype, f64=1e-6, f32=1e-3)
     # A double solution (camera on the danger cylinder: e.g. a fronto-parallel triangle
     # seen from above one of its vertices) is a tangency of the two conics: the quadratic
     # on the plane has a zero discriminant, which rounding makes negative as often as not.
@@ -374,7 +350,7 @@ def _triangle_area(a, b, c):
     u, v = b - a, c - a
     if u.shape[-1] == 2:
         return 0.5 * jnp.abs(u[0] * v[1] - u[1] * v[0])
-    return 0.5 * _safe_sqrt(jnp.sum(jnp.cross(u, v) ** 2))
+    return 0.5 * safe_sqrt(jnp.sum(jnp.cross(u, v) ** 2))
 
 
 def three_point(
@@ -412,7 +388,7 @@ def three_point(
     area = _triangle_area(image[0], image[1], image[2])
     edges = jnp.stack([model[0] - model[1], model[0] - model[2], model[1] - model[2]])
     longest = jnp.max(jnp.sum(edges**2, axis=1))
-    shape = _safe_div(_triangle_area(model[0], model[1], model[2]), longest)
+    shape = safe_div(_triangle_area(model[0], model[1], model[2]), longest)
     finite = jnp.all(jnp.isfinite(C)) & jnp.all(jnp.isfinite(model)) & jnp.all(jnp.isfinite(image))
     degenerate_image = ~(area >= min_area)
     degenerate_model = ~(shape >= collinear_tol)

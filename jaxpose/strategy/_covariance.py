@@ -1,5 +1,4 @@
-"""First-order uncertainty of a pose, and the local chart shared with the gradients of
-`jaxpose.solve`.
+"""First-order uncertainty of a pose.
 
 A pose `(R^, t^)` is perturbed in the parameterisation
 
@@ -15,7 +14,8 @@ with `sigma` the standard deviation of the pixel noise (per coordinate), given o
 estimated from the residual sum of squares as `sqrt(RSS / (2n - 6))`.
 
 Internally the Jacobian is taken in a better-conditioned chart that rotates about the
-centroid `c` of the world points and scales the translation by their RMS radius `L`,
+centroid `c` of the world points and scales the translation by their RMS radius `L`
+(`jaxpose.solvers._chart`, shared with the gradients of `jaxpose.solve`),
 
     p_i = exp(hat(w)) (R^ m_i + t^ - c) + c + L u,
 
@@ -31,9 +31,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ..geometry._pose import Observations, Pose, observations, transform
-from ..geometry._rotation import hat, rotvec_to_matrix
-from ..solvers._residuals import pixel_residuals
+from ..geometry._pose import Pose, observations
+from ..geometry._rotation import hat
+from ..solvers._chart import Chart, chart_at, chart_residuals
+from ..solvers._linalg import symmetric_pinv
 
 __all__ = ["PoseCovariance", "pose_covariance"]
 
@@ -56,78 +57,12 @@ class PoseCovariance(NamedTuple):
     rank: Int[Array, ""]
 
 
-class _Chart(NamedTuple):
-    """The centred, scaled chart around a pose (see the module docstring)."""
-
-    pose: Pose
-    centre: Float[Array, " 3"]
-    length: Float[Array, ""]
-
-
-def _chart_at(pose: Pose, obs: Observations) -> _Chart:
-    """The chart around `pose`: centroid and RMS radius of the masked world points."""
-    world = transform(pose, obs.model)
-    w = obs.mask.astype(world.dtype)
-    count = jnp.maximum(jnp.sum(w), 1)
-    centre = jnp.sum(world * w[:, None], axis=0) / count
-    spread = jnp.sum(jnp.sum((world - centre[None, :]) ** 2, axis=1) * w) / count
-    positive = spread > 0
-    length = jnp.where(positive, jnp.sqrt(jnp.where(positive, spread, 1)), 1)
-    return _Chart(pose, centre, length)
-
-
-def _chart_pose(xi: Float[Array, " 6"], chart: _Chart) -> Pose:
-    """The pose at chart coordinates `xi = (w, u)` (`xi = 0`: the chart's pose)."""
-    Rw = rotvec_to_matrix(xi[:3])
-    R = Rw @ chart.pose.R
-    # t^ + (Rw - I)(t^ - c) + L u: exactly t^ at xi = 0.
-    arm = chart.pose.t - chart.centre
-    t = chart.pose.t + (Rw @ arm - arm) + chart.length * xi[3:]
-    return Pose(R, t)
-
-
-def _chart_residuals(xi: Float[Array, " 6"], chart: _Chart, obs: Observations):
-    """Eq. 8's pixel residuals `(2n,)` at chart coordinates `xi` (zero where masked)."""
-    return pixel_residuals(transform(_chart_pose(xi, chart), obs.model), obs).reshape(-1)
-
-
-def _chart_to_pose_params(chart: _Chart) -> Float[Array, "6 6"]:
+def _chart_to_pose_params(chart: Chart) -> Float[Array, "6 6"]:
     """The linear map from chart coordinates `(w, u)` to `(w, dt)` at the chart's pose."""
     dtype = chart.centre.dtype
     eye = jnp.eye(3, dtype=dtype)
     zero = jnp.zeros((3, 3), dtype)
     return jnp.block([[eye, zero], [-hat(chart.pose.t - chart.centre), chart.length * eye]])
-
-
-def _symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
-    """Pseudo-inverse of a small symmetric matrix, finite for every input.
-
-    The matrix is equilibrated by its diagonal (`D A D`, `D = diag(|A_ii|)^(-1/2)`), then
-    eigen-decomposed; eigenvalues of magnitude at most `rcond` times the largest are
-    dropped. The derivative is `-A^+ dA A^+` (exact where `A` is invertible, finite
-    everywhere, unlike the eigen-decomposition's own at repeated eigenvalues).
-    Returns `(A^+, rank, positive_definite)`.
-    """
-    A_in = A
-    A = jax.lax.stop_gradient(A)
-    dtype = A.dtype
-    k = A.shape[0]
-    rcond = 64 * float(jnp.finfo(dtype).eps) if rcond is None else rcond
-    diag = jnp.abs(jnp.diagonal(A))
-    ok = diag > 0
-    d = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, diag, 1)), 0)
-    Ae = A * d[:, None] * d[None, :]
-    Ae = 0.5 * (Ae + Ae.T)
-    lam, V = jnp.linalg.eigh(Ae)
-    cutoff = rcond * jnp.max(jnp.abs(lam))
-    keep = (jnp.abs(lam) > cutoff) & (jnp.abs(lam) > jnp.finfo(dtype).tiny)
-    inv_lam = jnp.where(keep, 1 / jnp.where(keep, lam, 1), 0)
-    pinv = (V * inv_lam[None, :]) @ V.T
-    pinv = pinv * d[:, None] * d[None, :]
-    pinv = pinv - pinv @ (A_in - A) @ pinv
-    rank = jnp.sum(keep).astype(jnp.int32)
-    positive = jnp.all(jnp.isfinite(lam)) & (rank == k) & jnp.all(lam > 0)
-    return pinv, rank, positive
 
 
 def pose_covariance(
@@ -165,10 +100,10 @@ def pose_covariance(
     obs = observations(camera, model, image, mask)
     dtype = obs.camera.dtype
     pose = Pose(jnp.asarray(pose.R, dtype), jnp.asarray(pose.t, dtype))
-    chart = _chart_at(pose, obs)
+    chart = chart_at(pose, obs)
     zero = jnp.zeros(6, dtype)
-    r = _chart_residuals(zero, chart, obs)
-    J = jax.jacfwd(_chart_residuals)(zero, chart, obs)
+    r = chart_residuals(zero, chart, obs)
+    J = jax.jacfwd(chart_residuals)(zero, chart, obs)
     if sigma is None:
         dof = 2 * jnp.sum(obs.mask) - 6
         rss = jnp.sum(r * r)
@@ -177,7 +112,7 @@ def pose_covariance(
         sigma_ = jnp.where(positive, jnp.sqrt(jnp.where(positive, var, 1)), 0)
     else:
         sigma_ = jnp.asarray(sigma, dtype)
-    inv, rank, _ = _symmetric_pinv(J.T @ J)
+    inv, rank, _ = symmetric_pinv(J.T @ J)
     A = _chart_to_pose_params(chart)
     cov = sigma_**2 * (A @ inv @ A.T)
     return PoseCovariance(0.5 * (cov + cov.T), sigma_, rank)

@@ -15,35 +15,29 @@ fixed seeded sample of `jaxpose.triplet_indices` above `max_triplets`):
    truncated cost.
 
 Exhaustive scoring needs no iteration count or confidence: the answer is the
-consensus optimum over all triplets' roots, the same on every call. `solve_pnp_ransac`
-wraps it with `cv2.solvePnPRansac`'s conventions.
+consensus optimum over all triplets' roots, the same on every call.
+`jaxpose.solve_pnp_ransac` wraps it with `cv2.solvePnPRansac`'s conventions; the options
+are a `jaxpose.RobustOptions`.
 """
 
 from __future__ import annotations
 
-import functools
-import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..geometry._camera import camera_matrix, undistort_pixels
 from ..geometry._pose import Observations, Pose, observations, transform
-from ..geometry._rotation import matrix_to_rotvec
-from ..geometry._validate import as_dist_coeffs, as_intrinsics, as_matching
 from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
 from ..solvers._p3p import three_point
 from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
 from ..solvers._status import Status
-from ._mixed import triplet_indices
+from ._options import RobustOptions, resolve
+from ._triplets import triplet_indices
 
-__all__ = ["REFINEMENTS", "RobustResult", "robust", "solve_pnp_ransac"]
-
-REFINEMENTS = ("linear", "nonlinear", "none")
+__all__ = ["RobustResult", "robust"]
 
 
 class RobustResult(NamedTuple):
@@ -90,28 +84,14 @@ def _score(obs: Observations, pose: Pose, threshold):
     return inliers, jnp.sum(inliers).astype(jnp.int32), cost
 
 
-def _check_options(refine: str, rounds: int) -> None:
-    if refine not in REFINEMENTS:
-        raise ValueError(f"refine must be one of {REFINEMENTS}, got {refine!r}")
-    if int(rounds) < 0:
-        raise ValueError(f"rounds must be >= 0, got {rounds}")
-
-
 def robust(
     camera: Float[Array, "3 4"],
     model: Float[Array, "n 3"],
     image: Float[Array, "n 2"],
     mask: Bool[Array, " n"] | None = None,
     *,
-    inlier_threshold: float | Float[Array, ""] = 8.0,
-    min_inliers: int | Int[Array, ""] = 4,
-    min_area: float = 40.0,
-    collinear_tol: float = 5e-3,
-    max_triplets: int | None = 2000,
-    refine: str = "linear",
-    iterations: int = 5,
-    rounds: int = 2,
-    max_steps: int = 50,
+    options: RobustOptions | None = None,
+    **changes,
 ) -> RobustResult:
     r"""The pose of a known object from matches of which some may be wrong (JAX-native).
 
@@ -123,31 +103,30 @@ def robust(
     - `camera`: the 3x4 projection matrix `C`, calibrated in the world frame.
     - `model`: `(n, 3)` model points; `image`: `(n, 2)` pixels matched to them.
     - `mask`: optional `(n,)` bool, which matches take part (padding).
-    - `inlier_threshold`: the inlier test's pixel radius $\tau$ (may be traced).
-    - `min_inliers`: fewest inliers for the answer to count (`OK`); may be traced.
-    - `min_area`, `collinear_tol`: degenerate-triplet tests (`jaxpose.three_point`).
-    - `max_triplets`: above this many triplets, a fixed seeded sample of them.
-    - `refine`: `"linear"` (the small-movement method, `iterations` steps per round),
-      `"nonlinear"` (Levenberg-Marquardt, `max_steps`) or `"none"`.
-    - `rounds`: refine-then-recompute-inliers rounds.
+    - `options`: a `RobustOptions` (default: `RobustOptions()`): the inlier test's pixel
+      radius $\tau$ (`inlier_threshold`) and `min_inliers` (either may be traced, given
+      as a keyword shorthand), the refinement (`refine`, `rounds`, `iterations`,
+      `max_steps`) and the triplets (`min_area`, `collinear_tol`, `max_triplets`).
+    - `**changes`: keyword shorthands for fields of `options`
+      (`robust(C, M, I, inlier_threshold=2.0)`); an unknown one raises `ValueError`.
 
     **Returns:** a `RobustResult`.
     """
-    _check_options(refine, rounds)
+    options = resolve(options, changes, RobustOptions)
     obs = jax.lax.stop_gradient(observations(camera, model, image, mask))
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     n = obs.model.shape[0]
-    idx = jnp.asarray(triplet_indices(n, max_triplets))
-    thr = jnp.asarray(inlier_threshold, dtype)
+    idx = jnp.asarray(triplet_indices(n, options.max_triplets))
+    thr = jnp.asarray(options.inlier_threshold, dtype)
 
     def candidates(ijk):
         sol = three_point(
             obs.camera,
             obs.model[ijk],
             obs.image[ijk],
-            min_area=min_area,
-            collinear_tol=collinear_tol,
+            min_area=options.min_area,
+            collinear_tol=options.collinear_tol,
             approximate=True,
         )
         valid = sol.valid & jnp.all(obs.mask[ijk])
@@ -168,12 +147,12 @@ def robust(
     inliers, num, score = _score(obs, pose, thr)
     refined = jnp.zeros((), dtype=bool)
 
-    for _ in range(int(rounds) if refine != "none" else 0):
+    for _ in range(options.rounds if options.refine != "none" else 0):
         local = obs._replace(mask=inliers)
-        if refine == "linear":
-            res = linear(local, pose, iterations=iterations)
+        if options.refine == "linear":
+            res = linear(local, pose, iterations=options.iterations)
         else:
-            res = nonlinear(local, pose, max_steps=max_steps)
+            res = nonlinear(local, pose, max_steps=options.max_steps)
         new_inliers, new_num, new_score = _score(obs, res.pose, thr)
         keep = (
             found
@@ -195,7 +174,7 @@ def robust(
         & jnp.all(jnp.where(obs.mask[:, None], jnp.isfinite(obs.image), True))
     )
     status = jnp.select(
-        [jnp.sum(obs.mask) < 3, ~finite, ~found, num < min_inliers],
+        [jnp.sum(obs.mask) < 3, ~finite, ~found, num < options.min_inliers],
         [Status.TOO_FEW_POINTS, Status.NOT_FINITE, Status.NO_SOLUTION, Status.REJECTED],
         Status.OK,
     ).astype(jnp.int32)
@@ -212,103 +191,3 @@ def robust(
         refined=refined & ok_pose,
         cost=jnp.where(ok_pose, score, 0),
     )
-
-
-# --------------------------------------------------------------------------- cv2-style
-
-
-@functools.partial(
-    jax.jit, static_argnames=("max_triplets", "refine", "iterations", "rounds", "max_steps")
-)
-def _robust_opencv(
-    K, obj, img, threshold, min_inliers, max_triplets, refine, iterations, rounds, max_steps
-):
-    res = robust(
-        camera_matrix(K),
-        obj,
-        img,
-        inlier_threshold=threshold,
-        min_inliers=min_inliers,
-        max_triplets=max_triplets,
-        refine=refine,
-        iterations=iterations,
-        rounds=rounds,
-        max_steps=max_steps,
-    )
-    return res.status == Status.OK, matrix_to_rotvec(res.pose.R), res.pose.t, res.inliers
-
-
-def solve_pnp_ransac(
-    object_points,
-    image_points,
-    camera_matrix,
-    dist_coeffs=None,
-    *,
-    reprojection_error: float = 8.0,
-    min_inliers: int = 4,
-    max_triplets: int | None = 2000,
-    refine: str = "linear",
-    iterations: int = 5,
-    rounds: int = 2,
-    max_steps: int = 50,
-):
-    """Drop-in for `cv2.solvePnPRansac`: the pose of the object in the camera frame from
-    matches of which some may be wrong (jaxpose's robust mode, float64).
-
-    Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
-    (or `(n, 1, 3)`), `image_points` `(n, 2)`, `camera_matrix` `K` `(3, 3)`, optional
-    `dist_coeffs` (removed first with `cv2.undistortPoints`, so the inlier test is on
-    undistorted pixels). `reprojection_error` is the inlier threshold in pixels
-    (OpenCV's default, 8). Instead of RANSAC's iterations and confidence, every triplet
-    (up to `max_triplets`) is scored; see `jaxpose.robust` for the other options.
-
-    **Returns:** `(ok, rvec, tvec, inliers)`: `rvec`, `tvec` of shape `(3, 1)` with
-    `x_cam = Rodrigues(rvec) X + tvec`; `inliers` the indices of the inlier matches,
-    int32 `(k, 1)`, or `None` when `ok` is False (then `rvec`, `tvec` are finite
-    placeholders, zeros).
-    """
-    K = as_intrinsics(camera_matrix, "camera_matrix")
-    dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
-    obj, img = as_matching(object_points, image_points, min_count=3)
-    if isinstance(reprojection_error, bool) or not (
-        isinstance(reprojection_error, int | float | np.floating | np.integer)
-        and math.isfinite(reprojection_error)
-        and reprojection_error > 0
-    ):
-        raise ValueError(
-            f"reprojection_error must be a positive number, got {reprojection_error!r}"
-        )
-    if (
-        isinstance(min_inliers, bool)
-        or not isinstance(min_inliers, int | np.integer)
-        or min_inliers < 3
-    ):
-        raise ValueError(f"min_inliers must be an integer >= 3, got {min_inliers!r}")
-    if max_triplets is not None and (
-        isinstance(max_triplets, bool)
-        or not isinstance(max_triplets, int | np.integer)
-        or max_triplets < 1
-    ):
-        raise ValueError(f"max_triplets must be None or an integer >= 1, got {max_triplets!r}")
-    _check_options(refine, rounds)
-    img = undistort_pixels(img, K, dist)
-    with jax.enable_x64(True):
-        ok, rvec, tvec, inliers = _robust_opencv(
-            jnp.asarray(K, jnp.float64),
-            jnp.asarray(obj, jnp.float64),
-            jnp.asarray(img, jnp.float64),
-            jnp.asarray(reprojection_error, jnp.float64),
-            jnp.asarray(min_inliers, jnp.int32),
-            None if max_triplets is None else int(max_triplets),
-            refine,
-            int(iterations),
-            int(rounds),
-            int(max_steps),
-        )
-        ok = bool(ok)
-        rvec, tvec = np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
-        inliers = np.asarray(inliers)
-    if not ok:
-        return False, np.zeros((3, 1)), np.zeros((3, 1)), None
-    index = np.flatnonzero(inliers).astype(np.int32).reshape(-1, 1)
-    return True, rvec.reshape(3, 1), tvec.reshape(3, 1), index

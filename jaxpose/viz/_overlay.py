@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..apps._bench import Bench, Polyhedron
-from ..apps._models import face_normals
+from ..apps._bench import Bench
+from ..apps._polyhedron import Polyhedron, polygon_normals
+from ..geometry._camera import project_numpy
 from ..geometry._validate import as_camera, as_dist_coeffs, as_points
 
 __all__ = ["draw_model", "draw_points", "overlay", "render", "render_bench"]
@@ -96,7 +97,8 @@ def _color_for(image: np.ndarray, color: tuple[float, ...]):
 
 
 class _Camera:
-    """A 3x4 camera prepared for drawing: ideal projection, depth, centre, distortion."""
+    """A 3x4 camera prepared for drawing: `C` normalised as `project_numpy` does (ideal
+    pixels and depths come from `project_numpy(cam.C, world)`), centre, distortion."""
 
     def __init__(self, camera, dist_coeffs=None):
         C = np.asarray(as_camera(camera, "camera"), dtype=np.float64)
@@ -112,13 +114,6 @@ class _Camera:
         signs = np.diag(np.sign(np.diag(K)))
         self.K = K @ signs / (K @ signs)[2, 2]
         # K [R | t] = C (normalised): the rows of R = K^-1 M are the camera's axes.
-
-    def project(self, world: np.ndarray):
-        """Ideal (pinhole) pixels and depths of world points `(n, 3)`."""
-        h = world @ self.C[:, :3].T + self.C[:, 3]
-        depth = h[:, 2]
-        safe = np.where(np.abs(depth) > 1e-300, depth, 1e-300)
-        return h[:, :2] / safe[:, None], depth
 
     def distort(self, uv: np.ndarray) -> np.ndarray:
         """Ideal pixels to the pixels the lens produces (identity without distortion)."""
@@ -162,7 +157,7 @@ def _clip_box(p, q, lo, hi):
 
 
 def _front_faces(model: Polyhedron, world: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    normals = face_normals(world, model.faces)
+    normals = polygon_normals(world, model.faces)
     return np.array(
         [normals[i] @ (centre - world[f[0]]) > 0 for i, f in enumerate(model.faces)], dtype=bool
     )
@@ -218,7 +213,7 @@ def draw_model(
     samples = _check_positive_int(samples, "samples")
     out = image.copy()
     world = np.asarray(model.vertices, dtype=np.float64) @ R.T + t
-    _, depth = cam.project(world)
+    _, depth = project_numpy(cam.C, world)
     edges = np.asarray(model.edges, dtype=np.int64).reshape(-1, 2)
     if cull:
         front = _front_faces(model, world, cam.centre)
@@ -237,7 +232,7 @@ def draw_model(
         seg = _clip_depth(world[a], world[b], depth[a], depth[b], near)
         if seg is None:
             continue
-        (p, q), _ = cam.project(np.stack(seg))
+        (p, q), _ = project_numpy(cam.C, np.stack(seg))
         seg2 = _clip_box(p, q, lo, hi)
         if seg2 is None:
             continue
@@ -350,7 +345,7 @@ def overlay(
         raise ValueError(f"observed has {len(obs)} points but vertices has {len(idx)}")
     R, t = _check_pose(pose)
     cam = _Camera(camera, dist_coeffs)
-    uv, depth = cam.project(np.asarray(model.vertices, np.float64)[idx] @ R.T + t)
+    uv, depth = project_numpy(cam.C, np.asarray(model.vertices, np.float64)[idx] @ R.T + t)
     uv = cam.distort(uv[depth > 0])
     out = draw_points(out, obs, color=observed_color, marker="circle", size=5, thickness=thickness)
     return draw_points(
@@ -401,8 +396,8 @@ def render(
     s = _check_positive_int(supersample, "supersample")
     W, H = width * s, height * s
     world = np.asarray(model.vertices, dtype=np.float64) @ R.T + t
-    uv, depth = cam.project(world)
-    normals = face_normals(world, model.faces)
+    uv, depth = project_numpy(cam.C, world)
+    normals = polygon_normals(world, model.faces)
     front = _front_faces(model, world, cam.centre)
     if light is None:  # behind the camera, above it and to its left (image axes)
         axes = np.linalg.inv(cam.K) @ cam.C[:, :3]  # rows: camera x (right), y (down), z

@@ -1,0 +1,244 @@
+"""Drop-ins for OpenCV's PnP functions: `solve_pnp` (`cv2.solvePnP`), `solve_pnp_batch`
+(many problems in one compiled call) and `solve_pnp_ransac` (`cv2.solvePnPRansac`).
+
+The boundary between numpy and JAX: numpy in and out, OpenCV's conventions (the camera
+frame is the world frame, `C = K [I | 0]`; the pose is `rvec, tvec`, object to camera;
+`dist_coeffs` removed first with `cv2.undistortPoints`), float64 inside whatever the
+process's JAX configuration, inputs checked with `ValueError` naming the argument.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry._camera import camera_matrix, undistort_pixels
+from ..geometry._rotation import matrix_to_rotvec
+from ..geometry._validate import as_dist_coeffs, as_intrinsics, as_matching, as_points
+from ..solvers._status import Status
+from ..strategy._options import Options, RobustOptions, resolve
+from ..strategy._robust import robust
+from ._batch import run_batched
+from ._solve import solve, solve_many
+
+__all__ = ["solve_pnp", "solve_pnp_batch", "solve_pnp_ransac"]
+
+
+@functools.partial(jax.jit, static_argnames=("options",))
+def _solve_opencv(K, obj, img, options: Options):
+    C = camera_matrix(K)
+    sol = solve(C, obj, img, options=options)
+    return sol.accepted, matrix_to_rotvec(sol.pose.R), sol.pose.t
+
+
+@functools.partial(jax.jit, static_argnames=("options",))
+def _batched_opencv(K, obj, img, options: Options):
+    sol = solve_many(camera_matrix(K), obj, img, options=options)
+    return sol.accepted, jax.vmap(matrix_to_rotvec)(sol.pose.R), sol.pose.t
+
+
+def _read_array(x, name: str) -> np.ndarray:
+    """`np.asarray(x)`, with numpy's complaints (ragged lists and the like) naming `name`."""
+    if x is None:
+        raise ValueError(f"{name} is required, got None")
+    try:
+        return np.asarray(x)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{name} could not be read as an array: {exc}") from exc
+
+
+def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: bool):
+    K = as_intrinsics(camera_matrix_, "camera_matrix")
+    dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
+    if not batched:
+        obj = as_points(object_points, "object_points", 3, min_count=3)
+        img = as_points(image_points, "image_points", 2, min_count=3)
+        as_matching(obj, img)
+        return K, obj, undistort_pixels(img, K, dist)
+    img = _read_array(image_points, "image_points")
+    if img.ndim != 3 or img.shape[-1] != 2:
+        raise ValueError(f"image_points must have shape (B, n, 2), got {img.shape}")
+    B, n = img.shape[:2]
+    if B == 0:
+        raise ValueError("image_points must hold at least one problem, got an empty batch")
+    img = np.stack([as_points(x, "image_points", 2, min_count=3) for x in img])
+    obj = _read_array(object_points, "object_points")
+    if obj.ndim == 2:
+        obj = np.broadcast_to(as_points(obj, "object_points", 3, min_count=3), (B, *obj.shape))
+    elif obj.ndim == 3 and obj.shape[0] == B:
+        obj = np.stack([as_points(x, "object_points", 3, min_count=3) for x in obj])
+    else:
+        raise ValueError(
+            f"object_points must have shape (n, 3) or (B, n, 3) with B = {B}, got {obj.shape}"
+        )
+    if obj.shape[1] != n:
+        raise ValueError(
+            f"object_points has {obj.shape[1]} points per problem but image_points has {n}"
+        )
+    if dist is not None:
+        img = np.stack([undistort_pixels(x, K, dist) for x in img])
+    return K, obj, img
+
+
+def solve_pnp(
+    object_points,
+    image_points,
+    camera_matrix,
+    dist_coeffs=None,
+    *,
+    options: Options | None = None,
+    **changes,
+):
+    """Drop-in for `cv2.solvePnP`: the pose of the object in the camera frame.
+
+    Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
+    (or `(n, 1, 3)`), `image_points` `(n, 2)`, `camera_matrix` `K` `(3, 3)`, optional
+    `dist_coeffs` (removed first with `cv2.undistortPoints`). Computes in float64.
+
+    `options`: a `jaxpose.Options` (default `Options()`: `method="mixed"`); `**changes`:
+    keyword shorthands for its fields, e.g. `method="linear"` (one of `"mixed"`,
+    `"three_point"`, `"linear"`, `"nonlinear"`) or `triplet_budget=8` (see
+    `jaxpose.solve`).
+
+    **Returns:** `(ok, rvec, tvec)` with `rvec`, `tvec` of shape `(3, 1)`: `x_cam =
+    Rodrigues(rvec) X + tvec`. `ok` is False (with finite placeholders) when no pose is
+    accepted.
+    """
+    options = resolve(options, changes)
+    K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, False)
+    with jax.enable_x64(True):
+        ok, rvec, tvec = _solve_opencv(
+            jnp.asarray(K, jnp.float64),
+            jnp.asarray(obj, jnp.float64),
+            jnp.asarray(img, jnp.float64),
+            options,
+        )
+        ok, rvec, tvec = bool(ok), np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
+    return ok, rvec.reshape(3, 1), tvec.reshape(3, 1)
+
+
+def solve_pnp_batch(
+    object_points,
+    image_points,
+    camera_matrix,
+    dist_coeffs=None,
+    *,
+    options: Options | None = None,
+    chunk_size=None,
+    devices=None,
+    **changes,
+):
+    """`B` independent problems of equal `n` in one compiled call (float64).
+
+    **Arguments:** `object_points` `(B, n, 3)` or shared `(n, 3)`; `image_points`
+    `(B, n, 2)`; one `camera_matrix` and `dist_coeffs` for all.
+
+    `options`, `**changes`: as `solve_pnp`. `triplet_budget=k` solves only `k` well-spread
+    triplets per problem (see `jaxpose.solve`): the exhaustive `C(n, 3)` costs `n^3` per
+    problem.
+
+    `chunk_size`: at most this many problems per compiled call (bounded memory; `None`:
+    all at once); `devices`: the batch is split over these (`None`: all of
+    `jax.devices()`; an int: the first ones); see `jaxpose.run_batched`.
+
+    **Returns:** `(ok (B,), rvecs (B, 3), tvecs (B, 3))`, OpenCV's conventions.
+    """
+    options = resolve(options, changes)
+    K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
+    with jax.enable_x64(True):
+        ok, rvecs, tvecs = run_batched(
+            _batched_opencv,
+            (np.asarray(K, np.float64),),
+            (np.asarray(obj, np.float64), np.asarray(img, np.float64)),
+            static=(options,),
+            chunk_size=chunk_size,
+            devices=devices,
+        )
+        return np.asarray(ok), np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64)
+
+
+@functools.partial(jax.jit, static_argnames=("options",))
+def _robust_opencv(K, obj, img, threshold, min_inliers, options: RobustOptions):
+    res = robust(
+        camera_matrix(K),
+        obj,
+        img,
+        options=options,
+        inlier_threshold=threshold,
+        min_inliers=min_inliers,
+    )
+    return res.status == Status.OK, matrix_to_rotvec(res.pose.R), res.pose.t, res.inliers
+
+
+def solve_pnp_ransac(
+    object_points,
+    image_points,
+    camera_matrix,
+    dist_coeffs=None,
+    *,
+    reprojection_error: float | None = None,
+    options: RobustOptions | None = None,
+    **changes,
+):
+    """Drop-in for `cv2.solvePnPRansac`: the pose of the object in the camera frame from
+    matches of which some may be wrong (jaxpose's robust mode, `jaxpose.robust`, float64).
+
+    Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
+    (or `(n, 1, 3)`), `image_points` `(n, 2)`, `camera_matrix` `K` `(3, 3)`, optional
+    `dist_coeffs` (removed first with `cv2.undistortPoints`, so the inlier test is on
+    undistorted pixels). `reprojection_error` is the inlier threshold in pixels (`None`:
+    `options.inlier_threshold`, by default OpenCV's 8). Instead of RANSAC's iterations and
+    confidence, every triplet (up to `max_triplets`) is scored.
+
+    `options`: a `jaxpose.RobustOptions`; `**changes`: keyword shorthands for its fields
+    (`min_inliers`, `max_triplets`, `refine`, `iterations`, `rounds`, `max_steps`, ...).
+
+    **Returns:** `(ok, rvec, tvec, inliers)`: `rvec`, `tvec` of shape `(3, 1)` with
+    `x_cam = Rodrigues(rvec) X + tvec`; `inliers` the indices of the inlier matches,
+    int32 `(k, 1)`, or `None` when `ok` is False (then `rvec`, `tvec` are finite
+    placeholders, zeros).
+    """
+    if reprojection_error is not None and (
+        isinstance(reprojection_error, bool)
+        or not (
+            isinstance(reprojection_error, int | float | np.floating | np.integer)
+            and math.isfinite(reprojection_error)
+            and reprojection_error > 0
+        )
+    ):
+        raise ValueError(
+            f"reprojection_error must be a positive number, got {reprojection_error!r}"
+        )
+    options = resolve(options, changes, RobustOptions)
+    K = as_intrinsics(camera_matrix, "camera_matrix")
+    dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
+    obj, img = as_matching(object_points, image_points, min_count=3)
+    threshold = options.inlier_threshold if reprojection_error is None else reprojection_error
+    # The threshold and the inlier count are traced: one compiled program serves them all.
+    program = dataclasses.replace(
+        options,
+        inlier_threshold=RobustOptions.inlier_threshold,
+        min_inliers=RobustOptions.min_inliers,
+    )
+    img = undistort_pixels(img, K, dist)
+    with jax.enable_x64(True):
+        ok, rvec, tvec, inliers = _robust_opencv(
+            jnp.asarray(K, jnp.float64),
+            jnp.asarray(obj, jnp.float64),
+            jnp.asarray(img, jnp.float64),
+            jnp.asarray(threshold, jnp.float64),
+            jnp.asarray(options.min_inliers, jnp.int32),
+            program,
+        )
+        ok = bool(ok)
+        rvec, tvec = np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
+        inliers = np.asarray(inliers)
+    if not ok:
+        return False, np.zeros((3, 1)), np.zeros((3, 1)), None
+    index = np.flatnonzero(inliers).astype(np.int32).reshape(-1, 1)
+    return True, rvec.reshape(3, 1), tvec.reshape(3, 1), index

@@ -1,0 +1,36 @@
+"""What every `jaxpose` subcommand shares: the one-line error, the console, JAX's setup."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+__all__ = ["CliError", "new_console", "setup_jax"]
+
+
+class CliError(Exception):
+    """An error to report as one line, without a traceback."""
+
+
+def new_console():
+    """A `rich` console for a subcommand's output."""
+    from rich.console import Console
+
+    # Table 1 needs about 100 columns; rich falls back to 80 when output is not a terminal.
+    return Console(width=None if sys.stdout.isatty() else 110)
+
+
+def setup_jax(x64: bool = True) -> None:
+    """Configure JAX for this process: float64 when `x64`, and the persistent cache."""
+    import jax
+
+    # The command line owns its process: float64 (OpenCV-level accuracy) unless asked not
+    # to, and JAX's persistent compilation cache so that a second run starts fast.
+    jax.config.update("jax_enable_x64", x64)
+    cache = Path.home() / ".cache" / "jaxpose" / "xla"
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(cache))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    except OSError:  # pragma: no cover - read-only home
+        pass

@@ -1,0 +1,77 @@
+"""The derivative of the answer with respect to the problem, by the implicit function
+theorem at the Eq. 8 optimum.
+
+The mixed algorithm's choices (triplet, root, branch, acceptance) carry no derivative,
+and unrolling its iterations would give a poor one; the optimum itself does: `polish`
+attaches it to the answer.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool
+
+from ..geometry._pose import Observations, Pose
+from ..solvers._chart import chart_at, chart_pose, chart_residuals
+from ..solvers._linalg import symmetric_pinv
+
+__all__ = ["newton_step", "polish"]
+
+
+def polish(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+    """The answer, polished by Newton steps, with the implicit derivative attached.
+
+    In the chart `xi = (w, u)` around the (gradient-free) answer `(R^, t^)`
+    (`jaxpose.solvers._chart`: `R = exp(hat(w)) R^`, rotation about the centroid of the
+    world points, translation scaled by their RMS radius), let
+    `f(xi, theta) = |r(xi, theta)|^2 / 2` be Eq. 8's cost, `theta` the camera, model and
+    image, `g = df/dxi`, `H = d^2f/dxi^2` (the full Hessian, not Gauss-Newton's). At the
+    optimum `g(0, theta) = 0`, so by the implicit function theorem
+
+        dxi*/dtheta = -H^-1 dg/dtheta.
+
+    That is the derivative of the Newton step `xi = -H^-1 g(0, theta)` with `H` held
+    constant. Two Newton steps are taken from the answer (each only when `H` is positive
+    definite and the step is below `1e-3`, rad and object radii: at a converged answer they
+    move the pose by rounding, and they finish a pose that a solver left within its
+    tolerance, e.g. `1e-6` from Levenberg-Marquardt), the second carrying exactly the
+    implicit derivative. A singular `H` (a pose the matches do not determine) uses the
+    pseudo-inverse. Not accepted: the answer with a zero derivative. First derivatives
+    only (`H` carries none).
+
+    **Arguments:**
+    - `obs`: the problem (carrying the derivative).
+    - `pose`: the answer (its derivative is ignored).
+    - `accepted`: whether the answer was accepted.
+
+    **Returns:** the polished `Pose`.
+    """
+    sobs = jax.lax.stop_gradient(obs)
+    start = newton_step(sobs, jax.lax.stop_gradient(pose), accepted)
+    return newton_step(obs, jax.lax.stop_gradient(start), accepted)
+
+
+def newton_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+    """One guarded Newton step of Eq. 8 from `pose` (no derivative w.r.t. `pose`); its
+    derivative w.r.t. `obs` is the implicit one (see `polish`)."""
+    sobs = jax.lax.stop_gradient(obs)
+    chart = chart_at(pose, sobs)
+    zero = jnp.zeros(6, pose.t.dtype)
+
+    def cost(xi, o):
+        r = chart_residuals(xi, chart, o)
+        return 0.5 * jnp.sum(r * r)
+
+    g = jax.grad(cost)(zero, obs)
+    H = jax.hessian(cost)(zero, sobs)
+    H_inv, _, positive = symmetric_pinv(H)
+    step = -(H_inv @ g)
+    value = jax.lax.stop_gradient(step)
+    # Taken only within the quadratic convergence region of a minimum: H positive definite
+    # (so the step descends) and a step below 1e-3 (rad, object radii). The cost itself is
+    # no judge there: its rounding (~eps times the plane terms, not the cost) exceeds the
+    # decrease of a 1e-11 step.
+    local = jnp.all(jnp.abs(value) < 1e-3) & jnp.all(jnp.isfinite(value))
+    xi = jnp.where(positive & local, value, 0) + (step - value)
+    return chart_pose(jnp.where(accepted, xi, 0), chart)

@@ -1,0 +1,217 @@
+"""The solver's options, declared once.
+
+`Options` holds every tunable of the mixed algorithm and of the entry points built on it
+(`jaxpose.solve`, `solve_many`, `solve_batch`, `solve_pnp`, `solve_pnp_batch`,
+`jaxpose.mixed`, `mixed_from_initial`, `mixed_from_initial_batch`, `initial_poses`), each
+with its one default. `RobustOptions` holds those of robust mode (`jaxpose.robust`,
+`solve_pnp_ransac`): its own, and the triplet and refinement settings it shares with
+`Options` (same names, same defaults).
+
+Both are frozen, hashable dataclasses, so they can be static arguments of `jax.jit`:
+
+    run = jax.jit(jaxpose.solve, static_argnames="options")
+    run(C, M, I, options=jaxpose.Options(method="linear", threshold=2.0))
+
+Every entry point takes `options=None` (the defaults) and keyword shorthands for single
+fields, `solve(C, M, I, method="linear")` meaning
+`solve(C, M, I, options=dataclasses.replace(options or Options(), method="linear"))`
+(`resolve`). Values are checked when an options object is made: a bad one raises
+`ValueError` naming the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+import jax
+import numpy as np
+
+__all__ = ["METHODS", "REFINEMENTS", "Options", "RobustOptions", "resolve"]
+
+#: The methods of `Options.method`: the paper's four.
+METHODS = ("mixed", "three_point", "linear", "nonlinear")
+
+#: The refinements of `RobustOptions.refine`.
+REFINEMENTS = ("linear", "nonlinear", "none")
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _is_real(value) -> bool:
+    return (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+    )
+
+
+def _check_int(name: str, value, low: int, *, optional: bool = False) -> None:
+    """`value` an int `>= low` (or `None` when `optional`), else `ValueError` naming it."""
+    if value is None and optional:
+        return
+    if not _is_int(value):
+        kind = "a positive int" if low == 1 else f"an int >= {low}"
+        none = " or None" if optional else ""
+        raise ValueError(f"{name} must be {kind}{none}, got {value!r}")
+    if value < low:
+        raise ValueError(f"{name} must be >= {low}, got {value}")
+
+
+def _check_real(name: str, value, *, positive: bool, optional: bool = False) -> None:
+    """`value` a finite real number, `> 0` (`positive`) or `>= 0` (or `None` when
+    `optional`), else `ValueError` naming it."""
+    if value is None and optional:
+        return
+    bound = "> 0" if positive else ">= 0"
+    none = " or None" if optional else ""
+    if not _is_real(value) or (value <= 0 if positive else value < 0):
+        raise ValueError(f"{name} must be a finite number {bound}{none}, got {value!r}")
+
+
+def _check_choice(name: str, value, choices: tuple[str, ...]) -> None:
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """The options of the mixed algorithm and of the entry points built on it.
+
+    Frozen and hashable (a static argument of `jax.jit`); checked when made (`ValueError`
+    naming the field). Change fields with `dataclasses.replace`, or with the keyword
+    shorthands of the entry points (`jaxpose.solve(C, M, I, method="linear")`).
+
+    **Fields:**
+    - `method`: `"mixed"` (the paper's mixed algorithm, `jaxpose.mixed`),
+      `"three_point"`, `"linear"` or `"nonlinear"` (the last two started from every
+      triplet's three-point pose, as in the paper's experiment). Default `"mixed"`. Read
+      by the `solve*` entry points (the strategy functions are the mixed algorithm).
+    - `threshold`: acceptance threshold on Eq. 8 (px), or `None` (default) for the
+      adaptive one, within `rel_threshold` of the best converged error.
+    - `rel_threshold`: the adaptive threshold's margin over the best error (a fraction;
+      default `0.01`).
+    - `min_area`: the image-triangle area (px^2) below which a triplet counts as
+      aligned (`jaxpose.three_point`; default `40.0`).
+    - `collinear_tol`: model-triangle collinearity tolerance (scale-free; default `5e-3`).
+    - `linear_iterations`: steps of each run of the linear method (default `5`).
+    - `nonlinear_budget`: most triplets per problem sent to Levenberg-Marquardt, those of
+      lowest error first (default `32`; `None`: every triplet that needs it, as in the
+      paper's experiment).
+    - `second_chance_budget`: most failed triplets per problem retried from their other
+      three-point roots (default `8`; `0`: no second chance).
+    - `planar_partner`: for a coplanar model, also start from the planar-ambiguity
+      partner of the answer (default `True`).
+    - `max_steps`: Levenberg-Marquardt's iteration budget (default `50`; the retries get
+      a multiple of it, see `jaxpose.mixed`).
+    - `max_triplets`: above this many triplets (`C(n, 3)`; n = 24 gives 2024) a fixed
+      seeded sample of this many is used instead of all (`jaxpose.triplet_indices`;
+      default `2000`; `None`: all).
+    - `triplet_budget`: use only this many triplets, the ones with the largest image
+      triangles (`jaxpose.spread_triplets`): the fast path for large batches of easy
+      problems (default `None`: all of them).
+    - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
+      `None`: a size that grows with the batch, see `mixed_from_initial_batch`).
+    """
+
+    method: str = "mixed"
+    threshold: float | None = None
+    rel_threshold: float = 0.01
+    min_area: float = 40.0
+    collinear_tol: float = 5e-3
+    linear_iterations: int = 5
+    nonlinear_budget: int | None = 32
+    second_chance_budget: int = 8
+    planar_partner: bool = True
+    max_steps: int = 50
+    max_triplets: int | None = 2000
+    triplet_budget: int | None = None
+    chunk: int | None = None
+
+    def __post_init__(self):
+        _check_choice("method", self.method, METHODS)
+        _check_real("threshold", self.threshold, positive=True, optional=True)
+        _check_real("rel_threshold", self.rel_threshold, positive=False)
+        _check_real("min_area", self.min_area, positive=False)
+        _check_real("collinear_tol", self.collinear_tol, positive=False)
+        _check_int("linear_iterations", self.linear_iterations, 1)
+        _check_int("nonlinear_budget", self.nonlinear_budget, 0, optional=True)
+        _check_int("second_chance_budget", self.second_chance_budget, 0)
+        if not isinstance(self.planar_partner, (bool, np.bool_)):
+            raise ValueError(f"planar_partner must be a bool, got {self.planar_partner!r}")
+        _check_int("max_steps", self.max_steps, 1)
+        _check_int("max_triplets", self.max_triplets, 1, optional=True)
+        _check_int("triplet_budget", self.triplet_budget, 1, optional=True)
+        _check_int("chunk", self.chunk, 1, optional=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustOptions:
+    r"""The options of robust mode (`jaxpose.robust`, `jaxpose.solve_pnp_ransac`).
+
+    Its own (the consensus test and the refinement), and the triplet and refinement
+    settings it shares with `Options`, under the same names and with the same defaults.
+    Frozen and checked like `Options`; hashable when its values are (`inlier_threshold`
+    and `min_inliers` may also be traced arrays inside `jaxpose.robust`, which are not).
+
+    **Fields:**
+    - `inlier_threshold`: the inlier test's pixel radius $\tau$ (px; default `8.0`,
+      OpenCV's).
+    - `min_inliers`: fewest inliers for the answer to count (`OK`; default `4`, at least
+      `3`).
+    - `refine`: `"linear"` (default: the small-movement method, `iterations` steps per
+      round), `"nonlinear"` (Levenberg-Marquardt, `max_steps`) or `"none"`.
+    - `rounds`: refine-then-recompute-inliers rounds (default `2`).
+    - `iterations`: steps of each linear refinement (default: `Options.linear_iterations`).
+    - `max_steps`: Levenberg-Marquardt's iteration budget (default: `Options.max_steps`).
+    - `min_area`, `collinear_tol`, `max_triplets`: the triplet settings, as `Options`'s.
+    """
+
+    inlier_threshold: float = 8.0
+    min_inliers: int = 4
+    refine: str = "linear"
+    rounds: int = 2
+    iterations: int = Options.linear_iterations
+    max_steps: int = Options.max_steps
+    min_area: float = Options.min_area
+    collinear_tol: float = Options.collinear_tol
+    max_triplets: int | None = Options.max_triplets
+
+    def __post_init__(self):
+        if not isinstance(self.inlier_threshold, jax.Array):
+            _check_real("inlier_threshold", self.inlier_threshold, positive=True)
+        if not isinstance(self.min_inliers, jax.Array):
+            _check_int("min_inliers", self.min_inliers, 3)
+        _check_choice("refine", self.refine, REFINEMENTS)
+        _check_int("rounds", self.rounds, 0)
+        _check_int("iterations", self.iterations, 1)
+        _check_int("max_steps", self.max_steps, 1)
+        _check_real("min_area", self.min_area, positive=False)
+        _check_real("collinear_tol", self.collinear_tol, positive=False)
+        _check_int("max_triplets", self.max_triplets, 1, optional=True)
+
+
+_O = TypeVar("_O", Options, RobustOptions)
+
+
+def resolve(options: _O | None, changes: Mapping[str, Any], kind: type[_O] = Options) -> _O:
+    """The options an entry point runs with: `options` (`None`: `kind()`, the defaults)
+    with the keyword shorthands `changes` applied (`dataclasses.replace`).
+
+    **Raises:** `ValueError` naming an unknown keyword, a wrong type of `options`, or the
+    field of a bad value.
+    """
+    base = kind() if options is None else options
+    if not isinstance(base, kind):
+        raise ValueError(
+            f"options must be a jaxpose.{kind.__name__} or None, got {type(options).__name__}"
+        )
+    names = tuple(field.name for field in dataclasses.fields(kind))
+    for name in changes:
+        if name not in names:
+            raise ValueError(f"unknown option {name!r}: the options are {', '.join(names)}")
+    return dataclasses.replace(base, **changes) if changes else base

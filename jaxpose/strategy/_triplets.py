@@ -1,0 +1,177 @@
+"""Triplets of matches: which ones (all, a seeded sample, or the best spread), step 1 of
+the mixed algorithm on each (the best three-point root by Eq. 8), and the answer among
+them."""
+
+from __future__ import annotations
+
+import itertools
+from functools import cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ..geometry._pose import Observations, Pose, transform
+from ..solvers._p3p import three_point
+from ..solvers._residuals import pixel_residuals, rms
+from ..solvers._status import Status
+from ._jobs import pass_size
+from ._options import Options, resolve
+
+__all__ = [
+    "Initial",
+    "best_triplet",
+    "initial_poses",
+    "pose_errors",
+    "select_triplets",
+    "spread_triplets",
+    "triplet_count",
+    "triplet_indices",
+]
+
+
+@cache
+def triplet_indices(n: int, max_triplets: int | None = None) -> np.ndarray:
+    """Index triplets `i < j < k`, shape `(T, 3)` (static: numpy).
+
+    All `C(n, 3)` of them when that is at most `max_triplets` (or `max_triplets` is
+    `None`); otherwise a fixed, seeded uniform sample of `max_triplets` distinct triplets
+    (the same for every call with the same `n`), so that the work stays bounded as `n`
+    grows: the exhaustive set grows as `n^3 / 6`."""
+    total = n * (n - 1) * (n - 2) // 6
+    if max_triplets is None or total <= max_triplets:
+        return np.array(list(itertools.combinations(range(n), 3)), dtype=np.int32).reshape(-1, 3)
+    rng = np.random.default_rng(0)
+    chosen: set[tuple[int, ...]] = set()
+    while len(chosen) < max_triplets:
+        draw = np.sort(rng.integers(0, n, size=(2 * max_triplets, 3)), axis=1)
+        for row in draw[(draw[:, 0] < draw[:, 1]) & (draw[:, 1] < draw[:, 2])]:
+            chosen.add(tuple(int(v) for v in row))
+            if len(chosen) == max_triplets:
+                break
+    return np.array(sorted(chosen), dtype=np.int32)
+
+
+def spread_triplets(
+    obs: Observations, candidates: np.ndarray, budget: int
+) -> tuple[Int[Array, " k"], Int[Array, "k 3"]]:
+    """The `budget` candidate triplets whose image triangles are largest (well spread,
+    far from the aligned case; a data-dependent choice, fixed in size).
+
+    Triplets with a masked match come last. Returns `(rows, triplets)`: the rows of
+    `candidates` chosen, and the triplets themselves, `(budget, 3)`."""
+    cand = jnp.asarray(candidates, dtype=jnp.int32)
+    uv = obs.image[cand]  # (T, 3, 2)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * jnp.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    used = jnp.all(obs.mask[cand], axis=1)
+    area = jnp.where(used & jnp.isfinite(area), area, -1)
+    _, rows = jax.lax.top_k(area, min(int(budget), cand.shape[0]))
+    return rows, cand[rows]
+
+
+def select_triplets(obs: Observations, options: Options):
+    """The triplets that `options` select for one problem: `triplet_indices(n,
+    max_triplets)`, or, with a `triplet_budget` below their number, the best spread of
+    them (`spread_triplets`). Returns `(rows, triplets)`: their rows in
+    `triplet_indices(n, max_triplets)` and the triplets (numpy when all are used)."""
+    candidates = triplet_indices(obs.model.shape[0], options.max_triplets)
+    budget = options.triplet_budget
+    if budget is not None and budget < candidates.shape[0]:
+        return spread_triplets(obs, candidates, budget)
+    return jnp.arange(candidates.shape[0]), candidates
+
+
+def triplet_count(n: int, options: Options) -> int:
+    """How many triplets `select_triplets` gives for `n` matches (static)."""
+    T = triplet_indices(n, options.max_triplets).shape[0]
+    return T if options.triplet_budget is None else min(T, options.triplet_budget)
+
+
+class Initial(NamedTuple):
+    """Step 1 for every triplet: the best three-point root by Eq. 8 over all matches.
+
+    **Fields:** `pose` (batched `(T,)`), `error` `(T,)` px, `status` `(T,)`
+    (`OK` or why the triplet gave no pose), `triplets` `(T, 3)`; `alt_pose`, `alt_error`:
+    the other three roots, `(T, 3)`, best first (error `finfo.max` where there is none)."""
+
+    pose: Pose
+    error: Float[Array, " T"]
+    status: Int[Array, " T"]
+    triplets: Int[Array, "T 3"]
+    alt_pose: Pose
+    alt_error: Float[Array, " T"]
+
+
+def pose_errors(poses: Pose, obs: Observations) -> Float[Array, " k"]:
+    """Eq. 8 error of a batch of poses over all matches of one problem."""
+
+    def one(R, t):
+        return rms(pixel_residuals(transform(Pose(R, t), obs.model), obs), obs.mask)
+
+    return jax.vmap(one)(poses.R, poses.t)
+
+
+def initial_poses(
+    obs: Observations,
+    *,
+    options: Options | None = None,
+    triplets: np.ndarray | Int[Array, "T 3"] | None = None,
+    **changes,
+) -> Initial:
+    """Step 1 for every triplet of one problem, roots picked by Eq. 8 error.
+
+    **Arguments:**
+    - `obs`: the problem (`jaxpose.observations`).
+    - `options`: an `Options` (`min_area` and `collinear_tol` are read here); keyword
+      shorthands `**changes` replace its fields.
+    - `triplets`: `(T, 3)` index triplets, possibly a traced array (default: those of
+      `options`, `select_triplets`: all `C(n, 3)` for `n < 24`).
+
+    **Returns:** an `Initial`.
+    """
+    options = resolve(options, changes)
+    idx = select_triplets(obs, options)[1] if triplets is None else triplets
+    dtype = obs.camera.dtype
+    big = jnp.finfo(dtype).max
+
+    def one(ijk):
+        sol = three_point(
+            obs.camera,
+            obs.model[ijk],
+            obs.image[ijk],
+            min_area=options.min_area,
+            collinear_tol=options.collinear_tol,
+            approximate=True,
+        )
+        err = pose_errors(Pose(sol.R, sol.t), obs)
+        err = jnp.where(sol.valid & jnp.isfinite(err), err, big)
+        order = jnp.argsort(err)
+        best, others = order[0], order[1:]
+        used = jnp.all(obs.mask[ijk])
+        status = jnp.where(used, sol.status, Status.TOO_FEW_POINTS).astype(jnp.int32)
+        ok = status == Status.OK
+        alt_ok = ok & (err[others] < big)
+        eye = jnp.eye(3, dtype=dtype)
+        pose = Pose(jnp.where(ok, sol.R[best], eye), jnp.where(ok, sol.t[best], 0))
+        alt = Pose(
+            jnp.where(alt_ok[:, None, None], sol.R[others], eye[None]),
+            jnp.where(alt_ok[:, None], sol.t[others], 0),
+        )
+        return pose, jnp.where(ok, err[best], big), status, alt, jnp.where(alt_ok, err[others], big)
+
+    idx = jnp.asarray(idx, dtype=jnp.int32)
+    pose, error, status, alt, alt_error = jax.lax.map(one, idx, batch_size=pass_size(idx.shape[0]))
+    return Initial(pose, error, status, idx, alt, alt_error)
+
+
+def best_triplet(error: Float[Array, " T"], status: Int[Array, " T"]):
+    """Index of the problem's answer: the accepted triplet of lowest error, or, when none
+    was accepted, the lowest-error triplet overall. Returns `(index, accepted)`."""
+    big = jnp.finfo(error.dtype).max
+    ok = Status.is_success(status)
+    any_ok = jnp.any(ok)
+    index = jnp.where(any_ok, jnp.argmin(jnp.where(ok, error, big)), jnp.argmin(error))
+    return index, any_ok
