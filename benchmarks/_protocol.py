@@ -135,7 +135,7 @@ class Cell:
 
 
 def make_cell(kind: str, n: int, sigma: float, trials: int, seed: int = 0) -> Cell:
-    """`trials` instances of `jaxpose.random_scene` (OpenCV's convention, so the scene's
+    """`trials` instances of `jaxpose.apps.random_scene` (OpenCV's convention, so the scene's
     model-to-world pose is the camera-frame pose). One generator per cell, seeded by
     `(seed, kind, n, sigma)`: a shorter run's trials are a prefix of a longer run's."""
     key = (seed, KINDS.index(kind), n, round(sigma * 1000))

@@ -115,7 +115,7 @@ def bench_figure(out: Path) -> Path:
 
 
 def recognition_figure(out: Path) -> Path:
-    db = jp.model_database()
+    db = jp.apps.model_database()
     bench = model_bench("box", seed=0)
     k = len(bench.visible)
     wrong = db["l_block"]

@@ -16,7 +16,7 @@ DATA = Path(__file__).parent / "data" / "chessboard"
 
 
 def _opencv_scene(rng, n=10, noise=1.0, kind="ordinary"):
-    s = jp.random_scene(rng, n, noise=noise, kind=kind, world_camera=False)
+    s = jp.apps.random_scene(rng, n, noise=noise, kind=kind, world_camera=False)
     K = s.camera[:, :3]
     return s, K
 
@@ -72,7 +72,7 @@ def test_solve_pnp_with_distortion_and_opencv_layouts():
 def test_solve_pnp_batch_equals_the_loop():
     rng = np.random.default_rng(4)
     K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
-    scenes = [jp.random_scene(rng, 8, noise=1.0, world_camera=False) for _ in range(5)]
+    scenes = [jp.apps.random_scene(rng, 8, noise=1.0, world_camera=False) for _ in range(5)]
     obj = np.stack([s.model_points for s in scenes])
     img = np.stack([s.image_points for s in scenes])
     ok, rvecs, tvecs = jp.solve_pnp_batch(obj, img, K)
@@ -147,7 +147,7 @@ def test_import_leaves_jax_config_alone():
 
 def test_solve_is_jit_vmap_and_grad_friendly():
     rng = np.random.default_rng(6)
-    scenes = [jp.random_scene(rng, 6, noise=0.5) for _ in range(3)]
+    scenes = [jp.apps.random_scene(rng, 6, noise=0.5) for _ in range(3)]
     C = jnp.stack([s.camera for s in scenes])
     M = jnp.stack([s.model_points for s in scenes])
     I = jnp.stack([s.image_points for s in scenes])

@@ -36,8 +36,8 @@ def test_cholesky_solve_rejects_bad_shapes():
 def test_spread_triplets_takes_the_largest_image_triangles():
     bench = jp.default_bench(seed=0)
     obs = jp.observations(bench.camera, bench.model_points, bench.image_points)
-    candidates = jp.triplet_indices(len(bench.model_points))
-    rows, chosen = jp.spread_triplets(obs, candidates, 10)
+    candidates = jp.strategy.triplet_indices(len(bench.model_points))
+    rows, chosen = jp.strategy.spread_triplets(obs, candidates, 10)
     uv = np.asarray(bench.image_points)[candidates]
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
@@ -54,7 +54,7 @@ def test_triplet_budget_is_validated(bad):
 
 def test_solve_many_equals_vmapped_solve():
     rng = np.random.default_rng(7)
-    scenes = [jp.random_scene(rng, 8, noise=1.0, world_camera=False) for _ in range(6)]
+    scenes = [jp.apps.random_scene(rng, 8, noise=1.0, world_camera=False) for _ in range(6)]
     C = jnp.asarray(scenes[0].camera)
     M = jnp.asarray(np.stack([s.model_points for s in scenes]))
     I = jnp.asarray(np.stack([s.image_points for s in scenes]))
@@ -73,7 +73,7 @@ def test_solve_many_equals_vmapped_solve():
     # The accepted poses are the truth up to the noise.
     for b in (0, 1, 3, 4, 5):
         assert bool(many.accepted[b])
-        err = jp.rotation_distance(many.pose.R[b], jnp.asarray(scenes[b].R))
+        err = jp.geometry.rotation_distance(many.pose.R[b], jnp.asarray(scenes[b].R))
         assert float(err) < 0.05
 
 

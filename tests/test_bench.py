@@ -7,7 +7,7 @@ import jaxpose as jp
 
 
 def test_cross_prism_topology():
-    model = jp.cross_prism()
+    model = jp.apps.cross_prism()
     assert model.vertices.shape == (24, 3)
     assert model.edges.shape == (36, 2)
     assert len(model.faces) == 14
@@ -25,7 +25,7 @@ def test_cross_prism_topology():
 def test_faces_point_outwards():
     # Divergence theorem: with outward (counter-clockwise from outside) faces the signed
     # volume is positive and equals the cross's area times its thickness.
-    model = jp.cross_prism()
+    model = jp.apps.cross_prism()
     volume = 0.0
     for face in model.faces:
         p = model.vertices[list(face)]
@@ -73,11 +73,11 @@ def test_bench_is_seeded():
 @pytest.mark.parametrize("kind", ["ordinary", "quasi_singular", "planar"])
 def test_random_scene(kind):
     rng = np.random.default_rng(3)
-    s = jp.random_scene(rng, 12, noise=0.0, kind=kind)
+    s = jp.apps.random_scene(rng, 12, noise=0.0, kind=kind)
     world = s.model_points @ s.R.T + s.t
     np.testing.assert_allclose(jp.project(s.camera, world), s.image_points, atol=1e-8)
-    _, depth = jp.project_with_depth(s.camera, world)
+    _, depth = jp.geometry.project_with_depth(s.camera, world)
     assert np.all(np.asarray(depth) > 3.9)
     assert np.linalg.det(s.R) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="kind"):
-        jp.random_scene(rng, 5, kind="bogus")
+        jp.apps.random_scene(rng, 5, kind="bogus")

@@ -89,7 +89,7 @@ def test_calibrate_noise_free_from_the_robot():
     Cn = normalised(BENCH.camera)
     np.testing.assert_allclose(out.camera, Cn, atol=1e-8 * np.abs(Cn).max())
     assert float(out.error) < 1e-8
-    K, R, t, centre = (np.asarray(x) for x in jp.decompose_camera(out.camera))
+    K, R, t, centre = (np.asarray(x) for x in jp.geometry.decompose_camera(out.camera))
     np.testing.assert_allclose(K, BENCH.K, rtol=1e-8, atol=1e-6)
     np.testing.assert_allclose(centre, [0.0, -1550.0, 1250.0], atol=1e-6)
 
@@ -227,7 +227,7 @@ def test_agrees_with_opencv_on_the_robot_pairs(seed):
     assert abs(e_ours - e_cv) < 0.1  # the two predict alike (a fifth of the noise)
     # Decomposition: ours against OpenCV's decomposition of the same matrix.
     K_cv, R_cv, c_cv, *_ = cv2.decomposeProjectionMatrix(np.asarray(ours.camera))
-    K, Rw, _, centre = (np.asarray(x) for x in jp.decompose_camera(ours.camera))
+    K, Rw, _, centre = (np.asarray(x) for x in jp.geometry.decompose_camera(ours.camera))
     np.testing.assert_allclose(K, K_cv / K_cv[2, 2], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(Rw, R_cv, atol=1e-9)
     np.testing.assert_allclose(centre, (c_cv[:3] / c_cv[3]).ravel(), atol=1e-6)

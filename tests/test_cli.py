@@ -38,7 +38,7 @@ def problem():
     """A noisy problem with a general world camera `K [R | t]` and lens distortion: the
     image points are what a distorting lens shows (cv2.projectPoints), plus noise."""
     rng = np.random.default_rng(3)
-    s = jp.random_scene(rng, 8, noise=0.0, world_camera=True)
+    s = jp.apps.random_scene(rng, 8, noise=0.0, world_camera=True)
     C = np.asarray(s.camera)
     K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
     R_wc, t_wc = np.linalg.solve(K, C[:, :3]), np.linalg.solve(K, C[:, 3])

@@ -47,7 +47,7 @@ def test_convention_is_w_then_dt_about_the_given_pose():
     from the optimum too (the convention does not depend on where it is taken)."""
     rng = np.random.default_rng(0)
     for kind in ("ordinary", "planar", "quasi_singular"):
-        s = jp.random_scene(rng, 8, noise=0.7, kind=kind)
+        s = jp.apps.random_scene(rng, 8, noise=0.7, kind=kind)
         R = np.asarray(jp.rotvec_to_matrix(rng.normal(scale=0.01, size=3))) @ s.R
         t = s.t + rng.normal(scale=0.01, size=3)
         out = covariance(s.camera, s.model_points, s.image_points, jp.Pose(R, t), 0.7)
@@ -59,7 +59,7 @@ def test_convention_is_w_then_dt_about_the_given_pose():
 
 def test_sigma_estimate_is_rss_over_redundancy():
     rng = np.random.default_rng(1)
-    s = jp.random_scene(rng, 9, noise=1.3)
+    s = jp.apps.random_scene(rng, 9, noise=1.3)
     out = estimate(s.camera, s.model_points, s.image_points, jp.Pose(s.R, s.t), np.ones(9, bool))
     h = np.c_[s.model_points @ s.R.T + s.t, np.ones(9)] @ s.camera.T
     rss = np.sum((h[:, :2] / h[:, 2:] - s.image_points) ** 2)
@@ -78,7 +78,7 @@ def _monte_carlo(camera, model, clean, R, t, sigma, draws, seed):
     @jax.vmap
     def one(image):
         obs = jp.observations(camera, model, image)
-        res = jp.linear(obs, jp.Pose(jnp.asarray(R), jnp.asarray(t)), iterations=8)
+        res = jp.solvers.linear(obs, jp.Pose(jnp.asarray(R), jnp.asarray(t)), iterations=8)
         w = jp.matrix_to_rotvec(res.pose.R @ R.T)
         est = jp.pose_covariance(camera, model, image, res.pose)
         return jnp.concatenate([w, res.pose.t - t]), res.status, est.sigma
@@ -94,7 +94,7 @@ def test_covariance_matches_monte_carlo(case):
         b = jp.default_bench(noise=0.0)
         camera, model, clean, R, t, sigma = b.camera, b.model_points, b.clean_points, b.R, b.t, 0.8
     else:
-        s = jp.random_scene(np.random.default_rng(2), 7)
+        s = jp.apps.random_scene(np.random.default_rng(2), 7)
         camera, model, clean, R, t, sigma = s.camera, s.model_points, s.clean_points, s.R, s.t, 1.0
     predicted = np.asarray(
         jp.pose_covariance(camera, model, clean, jp.Pose(R, t), sigma=sigma).covariance
@@ -118,7 +118,7 @@ def test_covariance_matches_monte_carlo(case):
 
 def test_degenerate_inputs_are_finite():
     rng = np.random.default_rng(4)
-    s = jp.random_scene(rng, 6, noise=0.5)
+    s = jp.apps.random_scene(rng, 6, noise=0.5)
     pose = jp.Pose(s.R, s.t)
     line = np.outer(np.linspace(-1, 1, 6), [1.0, 2.0, 0.5])  # all model points collinear
     h = np.c_[line @ s.R.T + s.t, np.ones(6)] @ s.camera.T
@@ -144,7 +144,7 @@ def test_degenerate_inputs_are_finite():
 
 def test_covariance_under_vmap_and_float32():
     rng = np.random.default_rng(5)
-    scenes = [jp.random_scene(rng, 6, noise=0.5) for _ in range(4)]
+    scenes = [jp.apps.random_scene(rng, 6, noise=0.5) for _ in range(4)]
     C = np.stack([s.camera for s in scenes])
     M = np.stack([s.model_points for s in scenes])
     I = np.stack([s.image_points for s in scenes])

@@ -104,57 +104,59 @@ def _pick(rng, B, options):
 def _rotvec_group(r):
     R = jax.vmap(jp.rotvec_to_matrix)(r)
     r2 = jax.vmap(jp.matrix_to_rotvec)(R)
-    q = jax.vmap(jp.rotvec_to_quaternion)(r)
+    q = jax.vmap(jp.geometry.rotvec_to_quaternion)(r)
     return {
         "R": R,
         "R_back": jax.vmap(jp.rotvec_to_matrix)(r2),
         "r2": r2,
         "q": q,
-        "R_q": jax.vmap(jp.quaternion_to_matrix)(q),
-        "R_qr": jax.vmap(jp.rotvec_to_matrix)(jax.vmap(jp.quaternion_to_rotvec)(q)),
-        "q_R": jax.vmap(jp.matrix_to_quaternion)(R),
-        "angle": jax.vmap(jp.rotation_angle)(R),
-        "self_distance": jax.vmap(jp.rotation_distance)(R, R),
+        "R_q": jax.vmap(jp.geometry.quaternion_to_matrix)(q),
+        "R_qr": jax.vmap(jp.rotvec_to_matrix)(jax.vmap(jp.geometry.quaternion_to_rotvec)(q)),
+        "q_R": jax.vmap(jp.geometry.matrix_to_quaternion)(R),
+        "angle": jax.vmap(jp.geometry.rotation_angle)(R),
+        "self_distance": jax.vmap(jp.geometry.rotation_distance)(R, R),
         "d_to_rotvec": jax.vmap(jax.jacfwd(jp.matrix_to_rotvec))(R),
         "d_to_matrix": jax.vmap(jax.jacrev(jp.rotvec_to_matrix))(r),
-        "d_angle": jax.vmap(jax.grad(jp.rotation_angle))(R),
+        "d_angle": jax.vmap(jax.grad(jp.geometry.rotation_angle))(R),
     }
 
 
 @jax.jit
 def _quaternion_group(q, p, qv):
     return {
-        "R": jax.vmap(jp.quaternion_to_matrix)(q),
-        "r": jax.vmap(jp.quaternion_to_rotvec)(q),
-        "R_r": jax.vmap(jp.rotvec_to_matrix)(jax.vmap(jp.quaternion_to_rotvec)(q)),
-        "R_pq": jax.vmap(jp.quaternion_to_matrix)(jax.vmap(jp.quaternion_multiply)(p, q)),
-        "R_p": jax.vmap(jp.quaternion_to_matrix)(p),
-        "R_qv": jax.vmap(jp.quaternion_vector_to_matrix)(qv),
-        "d_qv": jax.vmap(jax.jacfwd(jp.quaternion_vector_to_matrix))(qv),
-        "d_q": jax.vmap(jax.jacfwd(jp.quaternion_to_rotvec))(q),
+        "R": jax.vmap(jp.geometry.quaternion_to_matrix)(q),
+        "r": jax.vmap(jp.geometry.quaternion_to_rotvec)(q),
+        "R_r": jax.vmap(jp.rotvec_to_matrix)(jax.vmap(jp.geometry.quaternion_to_rotvec)(q)),
+        "R_pq": jax.vmap(jp.geometry.quaternion_to_matrix)(
+            jax.vmap(jp.geometry.quaternion_multiply)(p, q)
+        ),
+        "R_p": jax.vmap(jp.geometry.quaternion_to_matrix)(p),
+        "R_qv": jax.vmap(jp.geometry.quaternion_vector_to_matrix)(qv),
+        "d_qv": jax.vmap(jax.jacfwd(jp.geometry.quaternion_vector_to_matrix))(qv),
+        "d_q": jax.vmap(jax.jacfwd(jp.geometry.quaternion_to_rotvec))(q),
     }
 
 
 @jax.jit
 def _rpy_group(rpy):
-    R = jax.vmap(jp.rpy_to_matrix)(rpy)
-    a, b, singular = jax.vmap(jp.matrix_to_rpy)(R)
+    R = jax.vmap(jp.geometry.rpy_to_matrix)(rpy)
+    a, b, singular = jax.vmap(jp.geometry.matrix_to_rpy)(R)
     return {
         "R": R,
         "a": a,
         "b": b,
         "singular": singular,
-        "R_a": jax.vmap(jp.rpy_to_matrix)(a),
-        "R_b": jax.vmap(jp.rpy_to_matrix)(b),
-        "d_rpy": jax.vmap(jax.jacfwd(lambda R: jp.matrix_to_rpy(R)[0]))(R),
+        "R_a": jax.vmap(jp.geometry.rpy_to_matrix)(a),
+        "R_b": jax.vmap(jp.geometry.rpy_to_matrix)(b),
+        "d_rpy": jax.vmap(jax.jacfwd(lambda R: jp.geometry.matrix_to_rpy(R)[0]))(R),
     }
 
 
 @jax.jit
 def _project_group(M):
     return {
-        "R": jax.vmap(jp.project_to_rotation)(M),
-        "d": jax.vmap(jax.jacfwd(jp.project_to_rotation))(M),
+        "R": jax.vmap(jp.geometry.project_to_rotation)(M),
+        "d": jax.vmap(jax.jacfwd(jp.geometry.project_to_rotation))(M),
     }
 
 
@@ -257,7 +259,9 @@ def test_rotations(dtype):
     assert np.max(np.abs(out["self_distance"])) < np.sqrt(eps)
 
     R_ref = lambda q: np.asarray(
-        jax.vmap(jp.quaternion_to_matrix)(jnp.asarray(q / np.linalg.norm(q, axis=1)[:, None]))
+        jax.vmap(jp.geometry.quaternion_to_matrix)(
+            jnp.asarray(q / np.linalg.norm(q, axis=1)[:, None])
+        )
     )
     out = jax.tree.map(np.asarray, _quaternion_group(q, p, qv))
     assert _finite(out), [k for k, v in out.items() if not _finite(v)]
@@ -288,22 +292,22 @@ def test_rotations(dtype):
 
 @jax.jit
 def _camera_group(C, points, pixels, length):
-    uv, depth = jax.vmap(jp.project_with_depth)(C, points)
-    centre, directions = jax.vmap(jp.backproject)(C, pixels)
-    K, R, t, centre2 = jax.vmap(jp.decompose_camera)(C)
-    n1, a1, n2, a2 = jax.vmap(jp.ray_planes)(C, pixels)
+    uv, depth = jax.vmap(jp.geometry.project_with_depth)(C, points)
+    centre, directions = jax.vmap(jp.geometry.backproject)(C, pixels)
+    K, R, t, centre2 = jax.vmap(jp.geometry.decompose_camera)(C)
+    n1, a1, n2, a2 = jax.vmap(jp.geometry.ray_planes)(C, pixels)
     return {
         "uv": jax.vmap(jp.project)(C, points),
         "uv_d": uv,
         "depth": depth,
         "centre": centre,
         "directions": directions,
-        "centre2": jax.vmap(jp.camera_centre)(C),
+        "centre2": jax.vmap(jp.geometry.camera_centre)(C),
         "K": K,
         "R": R,
         "t": t,
         "centre3": centre2,
-        "normalized": jax.vmap(jp.normalize_camera)(C),
+        "normalized": jax.vmap(jp.geometry.normalize_camera)(C),
         "planes": (n1, a1, n2, a2),
         "reprojected": jax.vmap(jp.project)(
             C, centre[:, None] + length[:, None, None] * directions
@@ -311,7 +315,7 @@ def _camera_group(C, points, pixels, length):
     }
 
 
-_centres = jax.jit(jax.vmap(jp.camera_centre))
+_centres = jax.jit(jax.vmap(jp.geometry.camera_centre))
 
 
 def _camera_inputs(rng, dtype):
@@ -516,8 +520,8 @@ def _eq8(camera, R, t, model, image):
 
 @jax.jit
 def _three_point_group(C, model, image, bearings):
-    sol = jax.vmap(jp.three_point)(C, model, image)
-    R, t, valid = jax.vmap(jp.p3p)(bearings, model)
+    sol = jax.vmap(jp.solvers.three_point)(C, model, image)
+    R, t, valid = jax.vmap(jp.solvers.p3p)(bearings, model)
     return sol, (R, t, valid)
 
 
@@ -654,13 +658,13 @@ for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
 @jax.jit
 def _linear_group(C, model, image, mask, R0, t0):
     obs = jax.vmap(jp.observations)(C, model, image, mask)
-    return jax.vmap(lambda o, R, t: jp.linear(o, jp.Pose(R, t)))(obs, R0, t0)
+    return jax.vmap(lambda o, R, t: jp.solvers.linear(o, jp.Pose(R, t)))(obs, R0, t0)
 
 
 @jax.jit
 def _nonlinear_group(C, model, image, mask, R0, t0):
     obs = jax.vmap(jp.observations)(C, model, image, mask)
-    return jax.vmap(lambda o, R, t: jp.nonlinear(o, jp.Pose(R, t)))(obs, R0, t0)
+    return jax.vmap(lambda o, R, t: jp.solvers.nonlinear(o, jp.Pose(R, t)))(obs, R0, t0)
 
 
 REFINERS = [("linear", LINEAR_BATCH), ("nonlinear", NONLINEAR_BATCH)]
@@ -726,7 +730,9 @@ def _check_solutions(out, s, dtype):
     assert _finite(out.pose, out.error, out.pose_error)
     assert set(np.unique(out.status)) <= VALID_STATUSES
     assert np.array_equal(out.accepted, np.asarray(jp.Status.is_success(out.status)))
-    assert np.all((out.triplet >= 0) & (out.triplet < jp.triplet_indices(N_POINTS).shape[0]))
+    assert np.all(
+        (out.triplet >= 0) & (out.triplet < jp.strategy.triplet_indices(N_POINTS).shape[0])
+    )
     assert np.max(_orthonormality(out.pose.R)) < 1e3 * EPS[dtype]
 
 

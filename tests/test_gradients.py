@@ -61,7 +61,7 @@ def make_batch(seed: int, size: int, *, noise=(0.1, 1.0), kinds=("ordinary", "pl
         n = COUNTS[i % len(COUNTS)]
         focal = rng.uniform(500, 1500)
         kind = kinds[i % len(kinds)]
-        s = jp.random_scene(rng, n, noise=rng.uniform(*noise), focal=focal, kind=kind)
+        s = jp.apps.random_scene(rng, n, noise=rng.uniform(*noise), focal=focal, kind=kind)
         k = np.array([focal, focal, 320.0, 240.0])
         ks.append(k)
         Es.append(np.linalg.solve(np.asarray(_K(k)), s.camera))
@@ -229,7 +229,7 @@ def test_other_methods_gradients_match_central_differences(method):
 def _problem(rng, n, *, R=None, noise=0.0, edit=None):
     """A random problem `(C, model, image)`; the true pose has rotation `R` (default
     random); `edit` may change the world points first (degenerate configurations)."""
-    s = jp.random_scene(rng, n)
+    s = jp.apps.random_scene(rng, n)
     world = s.model_points @ s.R.T + s.t
     if edit is not None:
         world = edit(world)

@@ -19,7 +19,7 @@ def _perturbed(R, t, rng, angle_deg, rel_shift, depth):
 def _scenes(count=6, n=10, noise=1.0):
     rng = np.random.default_rng(11)
     scenes = [jp.default_bench()]
-    scenes += [jp.random_scene(rng, n, noise=noise) for _ in range(count)]
+    scenes += [jp.apps.random_scene(rng, n, noise=noise) for _ in range(count)]
     return scenes
 
 
@@ -42,10 +42,10 @@ def _run_both(C, M, I, mask, R0, t0):
     def one(C, M, I, mask, R0, t0):
         obs = jp.observations(C, M, I, mask)
         start = jp.Pose(R0, t0)
-        lin3 = jp.linear(obs, start, iterations=3)
-        lin = jp.linear(obs, start)
-        raw = jp.linear(obs, start, iterations=8, weighting="raw")
-        nl = jp.nonlinear(obs, start)
+        lin3 = jp.solvers.linear(obs, start, iterations=3)
+        lin = jp.solvers.linear(obs, start)
+        raw = jp.solvers.linear(obs, start, iterations=8, weighting="raw")
+        nl = jp.solvers.nonlinear(obs, start)
         return lin3, lin, raw, nl
 
     return jax.vmap(one)(C, M, I, mask, R0, t0)
@@ -61,7 +61,7 @@ def test_linear_and_nonlinear_reach_the_opencv_optimum():
         R, t = opencv_optimum(s)
         refs.append((R, t))
         world = s.model_points @ s.R.T + s.t
-        depth = np.linalg.norm(world.mean(0) - np.asarray(jp.camera_centre(s.camera)))
+        depth = np.linalg.norm(world.mean(0) - np.asarray(jp.geometry.camera_centre(s.camera)))
         starts.append(_perturbed(s.R, s.t, rng, 4.0, 0.03, depth))
     R0 = np.stack([r for r, _ in starts])
     t0 = np.stack([t for _, t in starts])
@@ -92,7 +92,7 @@ def test_linear_reports_non_convergence_from_a_bad_start():
     rng = np.random.default_rng(0)
     R_ref, t_ref = opencv_optimum(b)
     e_ref = rms_px(b.camera, R_ref, t_ref, b.model_points, b.image_points)
-    run = jax.jit(jax.vmap(lambda R, t: jp.linear(obs, jp.Pose(R, t), iterations=3)))
+    run = jax.jit(jax.vmap(lambda R, t: jp.solvers.linear(obs, jp.Pose(R, t), iterations=3)))
     starts = [_perturbed(b.R, b.t, rng, 150.0, 0.3, 2000.0) for _ in range(32)]
     res = run(np.stack([r for r, _ in starts]), np.stack([t for _, t in starts]))
     status = np.asarray(res.status)
@@ -109,17 +109,17 @@ def test_methods_on_too_few_points_and_degenerate_data():
     mask = np.zeros(16, dtype=bool)
     mask[:2] = True
     obs = jp.observations(b.camera, b.model_points, b.image_points, mask)
-    lin = jp.linear(obs, jp.Pose(b.R, b.t))
-    nl = jp.nonlinear(obs, jp.Pose(b.R, b.t))
+    lin = jp.solvers.linear(obs, jp.Pose(b.R, b.t))
+    nl = jp.solvers.nonlinear(obs, jp.Pose(b.R, b.t))
     assert int(lin.status) == jp.Status.TOO_FEW_POINTS
     assert int(nl.status) == jp.Status.TOO_FEW_POINTS
     for leaf in jax.tree.leaves((lin, nl)):
         assert np.all(np.isfinite(leaf))
     # all points behind the camera
     obs = jp.observations(b.camera, b.model_points, b.image_points)
-    centre = np.asarray(jp.camera_centre(b.camera))
+    centre = np.asarray(jp.geometry.camera_centre(b.camera))
     behind = jp.Pose(b.R, 2 * centre - b.t)
-    lin = jp.linear(obs, behind, iterations=1)
+    lin = jp.solvers.linear(obs, behind, iterations=1)
     assert int(lin.status) != jp.Status.OK
     assert np.all(np.isfinite(lin.pose.t)) and np.isfinite(float(lin.error))
 
@@ -132,8 +132,8 @@ def test_float32_methods():
     rng = np.random.default_rng(2)
     R0, t0 = _perturbed(b.R, b.t, rng, 3.0, 0.02, 2000.0)
     start = jp.Pose(jnp.asarray(R0, jnp.float32), jnp.asarray(t0, jnp.float32))
-    lin = jp.linear(obs, start)
-    nl = jp.nonlinear(obs, start)
+    lin = jp.solvers.linear(obs, start)
+    nl = jp.solvers.nonlinear(obs, start)
     R_ref, t_ref = opencv_optimum(b)
     e_ref = rms_px(b.camera, R_ref, t_ref, b.model_points, b.image_points)
     assert lin.pose.R.dtype == jnp.float32 and nl.pose.t.dtype == jnp.float32
@@ -147,15 +147,18 @@ def test_float32_methods():
 @pytest.mark.parametrize("residual", ["rotvec", "quaternion", "ray"])
 def test_residual_jacobians_match_central_differences(residual):
     rng = np.random.default_rng(4)
-    s = jp.random_scene(rng, 8, noise=0.5)
+    s = jp.apps.random_scene(rng, 8, noise=0.5)
     obs = jp.observations(s.camera, s.model_points, s.image_points)
     if residual == "rotvec":
-        f, x = jp.rotvec_residual, np.concatenate([np.asarray(jp.matrix_to_rotvec(s.R)), s.t])
+        f, x = (
+            jp.solvers.rotvec_residual,
+            np.concatenate([np.asarray(jp.matrix_to_rotvec(s.R)), s.t]),
+        )
     elif residual == "quaternion":
-        q = np.asarray(jp.matrix_to_quaternion(s.R))
-        f, x = jp.quaternion_residual, np.concatenate([q[1:] * np.sign(q[0]), s.t])
+        q = np.asarray(jp.geometry.matrix_to_quaternion(s.R))
+        f, x = jp.solvers.quaternion_residual, np.concatenate([q[1:] * np.sign(q[0]), s.t])
     else:
-        f, x = jp.ray_residual, np.concatenate([np.asarray(jp.matrix_to_rotvec(s.R)), s.t])
+        f, x = jp.solvers.ray_residual, np.concatenate([np.asarray(jp.matrix_to_rotvec(s.R)), s.t])
     x = x + 1e-3 * rng.normal(size=6)
     fwd = np.asarray(jax.jacfwd(f)(x, obs))
     rev = np.asarray(jax.jacrev(f)(x, obs))
@@ -168,7 +171,7 @@ def test_residuals_vanish_at_the_true_pose():
     b = jp.default_bench(noise=0.0)
     obs = jp.observations(b.camera, b.model_points, b.image_points)
     r = np.asarray(jp.matrix_to_rotvec(b.R))
-    q = np.asarray(jp.matrix_to_quaternion(b.R))
-    assert np.abs(jp.rotvec_residual(np.concatenate([r, b.t]), obs)).max() < 1e-8
-    assert np.abs(jp.quaternion_residual(np.concatenate([q[1:], b.t]), obs)).max() < 1e-8
-    assert np.abs(jp.ray_residual(np.concatenate([r, b.t]), obs)).max() < 1e-5
+    q = np.asarray(jp.geometry.matrix_to_quaternion(b.R))
+    assert np.abs(jp.solvers.rotvec_residual(np.concatenate([r, b.t]), obs)).max() < 1e-8
+    assert np.abs(jp.solvers.quaternion_residual(np.concatenate([q[1:], b.t]), obs)).max() < 1e-8
+    assert np.abs(jp.solvers.ray_residual(np.concatenate([r, b.t]), obs)).max() < 1e-5

@@ -48,7 +48,9 @@ def test_mixed_reaches_the_optimum(experiments):
         )
         # the optimum is OpenCV's
         R, t = opencv_optimum(bench)
-        ref = float(jp.pose_error(bench.camera, R, t, bench.model_points, bench.image_points))
+        ref = float(
+            jp.geometry.pose_error(bench.camera, R, t, bench.model_points, bench.image_points)
+        )
         assert result.optimum == pytest.approx(ref, rel=1e-6)
 
 
@@ -60,7 +62,7 @@ def test_experiment_keeps_the_mixed_result(experiments):
     np.testing.assert_array_equal(mix.initial.triplets, result.triplets)
     assert mix.pose.R.shape == (560, 3, 3) and float(mix.threshold) == result.threshold
     mm = [
-        float(jp.pose_error(bench.camera, R, t, bench.model_points, bench.image_points))
+        float(jp.geometry.pose_error(bench.camera, R, t, bench.model_points, bench.image_points))
         for R, t in zip(mix.pose.R[result.used][:20], mix.pose.t[result.used][:20])
     ]
     np.testing.assert_allclose(mm, result.pose_error["mixed"][result.used][:20], rtol=1e-9)
@@ -107,14 +109,14 @@ def test_absolute_threshold_and_budget(bench_obs):
     loose = run(obs, threshold=2 * e_ref, nonlinear_budget=8)
     ok = jp.Status.is_success(np.asarray(loose.status))
     assert np.sum(ok) >= 0.99 * np.sum(used)
-    idx, accepted = jp.best_triplet(loose.error, loose.status)
+    idx, accepted = jp.strategy.best_triplet(loose.error, loose.status)
     assert bool(accepted)
     assert float(loose.error[idx]) == pytest.approx(e_ref, abs=1e-6)
 
 
 def test_collinear_problem_is_reported_not_solved():
     rng = np.random.default_rng(0)
-    s = jp.random_scene(rng, 6)
+    s = jp.apps.random_scene(rng, 6)
     line = np.outer(np.linspace(-1, 1, 6), [0.3, 0.2, 0.1])
     world = line + s.model_points.mean(0)
     img = np.asarray(jp.project(s.camera, world))

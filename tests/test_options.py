@@ -31,7 +31,7 @@ def test_defaults():
         o.collinear_tol,
         o.max_triplets,
     )
-    assert jp.METHODS == ("mixed", "three_point", "linear", "nonlinear")
+    assert jp.api.METHODS == ("mixed", "three_point", "linear", "nonlinear")
 
 
 def test_frozen_and_hashable():
@@ -45,7 +45,7 @@ def test_frozen_and_hashable():
 
 def test_options_are_a_static_argument_of_jit():
     rng = np.random.default_rng(0)
-    s = jp.random_scene(rng, 6, noise=0.5)
+    s = jp.apps.random_scene(rng, 6, noise=0.5)
     C, M, I = (jnp.asarray(x) for x in (s.camera, s.model_points, s.image_points))
     run = jax.jit(jp.solve, static_argnames="options")
     options = jp.Options(method="three_point", threshold=5.0)
@@ -129,7 +129,7 @@ def test_keyword_shorthands():
 def test_entry_points_reject_unknown_keywords():
     """Every entry point resolves its options first: an unknown keyword raises at once,
     naming it, before any input is read or anything compiled."""
-    s = jp.random_scene(np.random.default_rng(1), 6, world_camera=False)
+    s = jp.apps.random_scene(np.random.default_rng(1), 6, world_camera=False)
     C, M, I = s.camera, s.model_points, s.image_points
     K = s.camera[:, :3]  # the camera frame is the world frame: C = K [I | 0]
     obs = jp.observations(C, M, I)
@@ -142,7 +142,7 @@ def test_entry_points_reject_unknown_keywords():
         lambda: jp.solve_pnp_ransac(M, I, K, mehtod="linear"),
         lambda: jp.robust(C, M, I, mehtod="linear"),
         lambda: jp.mixed(obs, mehtod="linear"),
-        lambda: jp.initial_poses(obs, mehtod="linear"),
+        lambda: jp.strategy.initial_poses(obs, mehtod="linear"),
     ]
     for call in calls:
         with pytest.raises(ValueError, match="unknown option 'mehtod'"):

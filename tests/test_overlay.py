@@ -35,10 +35,10 @@ def _lit(image, channel=1):
 
 
 def test_edges_land_on_projected_edges():
-    model = jp.model_database()["box"]
+    model = jp.apps.model_database()["box"]
     R, t = _box_pose()
     image = np.zeros((240, 320, 3), np.uint8)
-    out = jp.draw_model(image, CAMERA, model, (R, t), color=(0, 255, 0))
+    out = jp.viz.draw_model(image, CAMERA, model, (R, t), color=(0, 255, 0))
     uv, _ = cv2.projectPoints(model.vertices, cv2.Rodrigues(R)[0], t, K, None)
     uv = uv.reshape(-1, 2)
     lit = _lit(out)
@@ -59,10 +59,10 @@ def test_edges_land_on_projected_edges():
 
 
 def test_distorted_edges_follow_opencv_projection():
-    model = jp.model_database()["box"]
+    model = jp.apps.model_database()["box"]
     R, t = _box_pose()
     dist = np.array([-0.27, -0.04, 0.002, -0.0003, 0.24])
-    out = jp.draw_model(np.zeros((240, 320), np.uint8), CAMERA, model, (R, t), dist_coeffs=dist)
+    out = jp.viz.draw_model(np.zeros((240, 320), np.uint8), CAMERA, model, (R, t), dist_coeffs=dist)
     lit = np.column_stack(np.nonzero(out > 0)[::-1]).astype(np.float64)
     strong = np.column_stack(np.nonzero(out > 127)[::-1]).astype(np.float64)
     # Dense samples of the 3D edges projected by OpenCV with the distortion.
@@ -79,7 +79,7 @@ def test_distorted_edges_follow_opencv_projection():
     d_curve = np.min(np.linalg.norm(curve[inside][:, None] - lit[None], axis=2), axis=1)
     assert d_curve.max() < 1.0
     # The straight (undistorted) drawing is off the distorted curve: distortion applied.
-    plain = jp.draw_model(np.zeros((240, 320), np.uint8), CAMERA, model, (R, t))
+    plain = jp.viz.draw_model(np.zeros((240, 320), np.uint8), CAMERA, model, (R, t))
     lit_plain = np.column_stack(np.nonzero(plain > 0)[::-1]).astype(np.float64)
     off = np.min(np.linalg.norm(lit_plain[:, None] - curve[None], axis=2), axis=1)
     assert off.max() > 3
@@ -96,14 +96,14 @@ def test_distorted_edges_follow_opencv_projection():
     ],
 )
 def test_image_shape_and_dtype_are_kept(shape, dtype):
-    model = jp.model_database()["pyramid"]
+    model = jp.apps.model_database()["pyramid"]
     R, t = np.eye(3), np.array([0.0, 0.0, 900.0])
     camera = np.column_stack(
         [np.diag([200.0, 200.0, 1.0]) + [[0, 0, 40], [0, 0, 30], [0, 0, 0]], np.zeros(3)]
     )
     image = np.full(shape, 7, dtype=dtype)
     before = image.copy()
-    out = jp.overlay(
+    out = jp.viz.overlay(
         image, camera, model, (R, t), vertices=np.arange(5), observed=np.full((5, 2), 30.0)
     )
     assert out.shape == image.shape and out.dtype == image.dtype
@@ -112,22 +112,22 @@ def test_image_shape_and_dtype_are_kept(shape, dtype):
 
 
 def test_edges_behind_the_camera_are_clipped():
-    model = jp.model_database()["box"]
+    model = jp.apps.model_database()["box"]
     image = np.zeros((240, 320, 3), np.uint8)
     # Entirely behind the camera: nothing drawn.
-    behind = jp.draw_model(image, CAMERA, model, (np.eye(3), np.array([0.0, 0.0, -500.0])))
+    behind = jp.viz.draw_model(image, CAMERA, model, (np.eye(3), np.array([0.0, 0.0, -500.0])))
     assert not behind.any()
     # Straddling the camera plane: only the part in front, never garbage, no error.
-    straddle = jp.draw_model(image, CAMERA, model, (np.eye(3), np.array([0.0, 0.0, 10.0])))
+    straddle = jp.viz.draw_model(image, CAMERA, model, (np.eye(3), np.array([0.0, 0.0, 10.0])))
     assert straddle.dtype == np.uint8 and straddle.shape == image.shape
 
 
 def test_cull_hides_the_back_edges_of_a_convex_model():
-    model = jp.model_database()["box"]
+    model = jp.apps.model_database()["box"]
     R, t = _box_pose()
     image = np.zeros((240, 320, 3), np.uint8)
-    full = jp.draw_model(image, CAMERA, model, (R, t))
-    culled = jp.draw_model(image, CAMERA, model, (R, t), cull=True)
+    full = jp.viz.draw_model(image, CAMERA, model, (R, t))
+    culled = jp.viz.draw_model(image, CAMERA, model, (R, t), cull=True)
     assert np.count_nonzero(culled) < np.count_nonzero(full)
     assert not np.any((culled > 0) & (full == 0))
 
@@ -136,7 +136,7 @@ def test_draw_points_marks_the_pixels():
     image = np.zeros((50, 60, 3), np.uint8)
     pts = np.array([[10.0, 12.0], [40.5, 30.25]])
     for marker in ("circle", "cross"):
-        out = jp.draw_points(image, pts, color=(255, 0, 0), marker=marker, size=4)
+        out = jp.viz.draw_points(image, pts, color=(255, 0, 0), marker=marker, size=4)
         for x, y in pts:
             i, j = int(round(y)), int(round(x))
             assert out[i - 5 : i + 6, j - 5 : j + 6, 0].max() > 0
@@ -145,7 +145,7 @@ def test_draw_points_marks_the_pixels():
 
 def test_render_bench_shows_the_object_where_it_projects():
     b = jp.default_bench()
-    img = jp.render_bench(b)
+    img = jp.viz.render_bench(b)
     w, h = b.image_size
     assert img.shape == (h, w, 3) and img.dtype == np.uint8
     background = np.array([96, 96, 96])
@@ -171,12 +171,12 @@ def test_render_bench_shows_the_object_where_it_projects():
 def test_render_matches_ray_casting():
     # The non-convex L-block, turned so that one arm hides part of the other: every pixel
     # away from the edges shows the shade of the face its ray meets first.
-    model = jp.model_database()["l_block"]
+    model = jp.apps.model_database()["l_block"]
     R = cv2.Rodrigues(np.array([1.2, 1.2, 0.0]))[0]
     t = np.array([0.0, 0.0, 500.0])
     light = np.array([0.3, -0.5, -1.0])
     base = np.array([150.0, 175.0, 205.0])
-    img = jp.render(CAMERA, model, (R, t), (320, 240), light=light, supersample=1)
+    img = jp.viz.render(CAMERA, model, (R, t), (320, 240), light=light, supersample=1)
     world = model.vertices @ R.T + t
     light = light / np.linalg.norm(light)
     normals, shades = [], []
@@ -224,11 +224,11 @@ def test_chessboard_grid_on_a_photograph():
     found, corners = cv2.findChessboardCorners(gray, (9, 6))
     assert found
     corners = corners.reshape(-1, 2)
-    model, inner = jp.chessboard((9, 6), 0.025)
+    model, inner = jp.apps.chessboard((9, 6), 0.025)
     ok, rvec, tvec = cv2.solvePnP(model.vertices[inner], corners, Kc, dist)
     assert ok
     pose = (cv2.Rodrigues(rvec)[0], tvec.ravel())
-    drawn = jp.draw_model(
+    drawn = jp.viz.draw_model(
         np.zeros_like(gray),
         np.column_stack([Kc, np.zeros(3)]),
         model,
@@ -242,7 +242,7 @@ def test_chessboard_grid_on_a_photograph():
 
 
 def test_chessboard_model():
-    model, inner = jp.chessboard((9, 6), 0.025, border=1)
+    model, inner = jp.apps.chessboard((9, 6), 0.025, border=1)
     assert model.vertices.shape == (11 * 8, 3) and np.all(model.vertices[:, 2] == 0)
     assert len(model.edges) == 10 * 8 + 11 * 7 and len(model.faces) == 10 * 7
     expected = np.zeros((54, 3))
@@ -251,13 +251,13 @@ def test_chessboard_model():
     lengths = np.linalg.norm(np.diff(model.vertices[model.edges], axis=1)[:, 0], axis=1)
     np.testing.assert_allclose(lengths, 0.025)
     with pytest.raises(ValueError, match="pattern"):
-        jp.chessboard((1, 6))
+        jp.apps.chessboard((1, 6))
     with pytest.raises(ValueError, match="square"):
-        jp.chessboard((9, 6), -1.0)
+        jp.apps.chessboard((9, 6), -1.0)
 
 
 def _good():
-    return np.zeros((40, 50, 3), np.uint8), CAMERA, jp.model_database()["box"], _box_pose()
+    return np.zeros((40, 50, 3), np.uint8), CAMERA, jp.apps.model_database()["box"], _box_pose()
 
 
 @pytest.mark.parametrize(
@@ -285,24 +285,24 @@ def test_draw_model_validation(change, name):
     kwargs = {k: change.pop(k) for k in list(change) if k not in args}
     args.update(change)
     with pytest.raises(ValueError, match=name):
-        jp.draw_model(args["image"], args["camera"], args["model"], args["pose"], **kwargs)
+        jp.viz.draw_model(args["image"], args["camera"], args["model"], args["pose"], **kwargs)
 
 
 def test_overlay_and_render_validation():
     image, camera, model, pose = _good()
     with pytest.raises(ValueError, match="together"):
-        jp.overlay(image, camera, model, pose, vertices=np.arange(3))
+        jp.viz.overlay(image, camera, model, pose, vertices=np.arange(3))
     with pytest.raises(ValueError, match="vertices"):
-        jp.overlay(
+        jp.viz.overlay(
             image, camera, model, pose, vertices=np.array([0, 99]), observed=np.zeros((2, 2))
         )
     with pytest.raises(ValueError, match="observed"):
-        jp.overlay(image, camera, model, pose, vertices=np.arange(3), observed=np.zeros((2, 2)))
+        jp.viz.overlay(image, camera, model, pose, vertices=np.arange(3), observed=np.zeros((2, 2)))
     with pytest.raises(ValueError, match="marker"):
-        jp.draw_points(image, np.zeros((1, 2)), marker="star")
+        jp.viz.draw_points(image, np.zeros((1, 2)), marker="star")
     with pytest.raises(ValueError, match="image_size"):
-        jp.render(camera, model, pose, (0, 10))
+        jp.viz.render(camera, model, pose, (0, 10))
     with pytest.raises(ValueError, match="light"):
-        jp.render(camera, model, pose, (10, 10), light=(0, 0, 0))
+        jp.viz.render(camera, model, pose, (10, 10), light=(0, 0, 0))
     with pytest.raises(ValueError, match="bench"):
-        jp.render_bench("bench")
+        jp.viz.render_bench("bench")

@@ -108,7 +108,7 @@ def test_middle_of_the_object_hits_the_top_face():
     normals = np.asarray(face_normals(FACES, TRUE))
     np.testing.assert_allclose(normals[0], BENCH.R[:, 2], atol=1e-12)
     np.testing.assert_allclose(normals[1], -BENCH.R[:, 2], atol=1e-12)
-    o = np.asarray(jp.camera_centre(C))
+    o = np.asarray(jp.geometry.camera_centre(C))
     assert float(hit.distance) == pytest.approx(np.linalg.norm(centre - o), rel=1e-12)
 
 
@@ -162,7 +162,7 @@ def test_non_finite_input_gives_status_not_nan():
 
 def test_object_behind_the_camera_is_not_hit():
     # Same ray, object mirrored behind the camera centre: nothing in front.
-    o = np.asarray(jp.camera_centre(C))
+    o = np.asarray(jp.geometry.camera_centre(C))
     behind = jp.Pose(BENCH.R, 2 * o - BENCH.t)
     assert int(pick_one(_project(C, BENCH.t), behind).status) == PointingStatus.NO_FACE
 
@@ -262,7 +262,7 @@ def test_pose_only_covariance_is_along_the_ray():
     hit = pick_one(np.array([445.0, 240.0]), None, A @ A.T)
     w, V = np.linalg.eigh(np.asarray(hit.covariance))
     assert w[1] < 1e-10 * w[2]  # rank one
-    o = np.asarray(jp.camera_centre(C))
+    o = np.asarray(jp.geometry.camera_centre(C))
     ray = (np.asarray(hit.point) - o) / float(hit.distance)
     assert abs(V[:, 2] @ ray) == pytest.approx(1.0, abs=1e-9)
 
@@ -300,7 +300,7 @@ def test_clicked_point_within_noise_propagated_tolerance():
     """On 24 noisy bench images: click the pixel of a true surface point, intersect with
     the estimated object; the error (along the ray) is within the propagated sigma."""
     estimates = _estimates()
-    o = np.asarray(jp.camera_centre(C))
+    o = np.asarray(jp.geometry.camera_centre(C))
     for m in (np.array([0.0, 0.0, 10.0]), np.array([60.0, 20.0, 10.0])):  # on the top face
         truth = m @ BENCH.R.T + BENCH.t
         ray = (truth - o) / np.linalg.norm(truth - o)

@@ -9,9 +9,10 @@ import pytest
 from scipy import stats
 
 import jaxpose as jp
-from jaxpose import Hypothesis, Status
+from jaxpose import Status
+from jaxpose.apps import Hypothesis
 
-MODELS = jp.model_database()
+MODELS = jp.apps.model_database()
 
 # Closed volumes of the models (mm^3), from their dimensions.
 VOLUMES = {
@@ -47,13 +48,13 @@ def test_model_topology_and_orientation(name):
 
 
 def test_database_holds_the_bench_object():
-    np.testing.assert_array_equal(MODELS["cross_prism"].vertices, jp.cross_prism().vertices)
+    np.testing.assert_array_equal(MODELS["cross_prism"].vertices, jp.apps.cross_prism().vertices)
     assert len(MODELS) == 5
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
 def test_model_bench_sees_the_visible_vertices(name):
-    b = jp.model_bench(name, seed=1)
+    b = jp.apps.model_bench(name, seed=1)
     world = b.model.vertices @ b.R.T + b.t
     centre = -b.R_wc.T @ b.t_wc
     w, h = b.image_size
@@ -104,7 +105,7 @@ def test_model_bench_hides_occluded_vertices(name, elevation):
     # sight passes through the solid (sampled densely, point-in-solid tests).
     model = MODELS[name]
     R = _grazing_pose(elevation)
-    b = jp.model_bench(name, R=R, t=np.zeros(3))
+    b = jp.apps.model_bench(name, R=R, t=np.zeros(3))
     centre = R.T @ (-b.R_wc.T @ b.t_wc)  # the camera centre in model coordinates
     k = len(model.vertices) // 2
     inside = _solid_prism(model.vertices[:k, :2], model.vertices[0, 2])
@@ -126,12 +127,12 @@ def test_model_bench_hides_occluded_vertices(name, elevation):
 
 def test_acceptance_thresholds_match_the_chi2_quantiles():
     for count in (4, 5, 8, 16, 24, 60):
-        error, residual = (float(x) for x in jp.acceptance_thresholds(count, 0.8, 0.999))
+        error, residual = (float(x) for x in jp.apps.acceptance_thresholds(count, 0.8, 0.999))
         exact = 0.8 * np.sqrt(stats.chi2.ppf(0.999, 2 * count - 6) / count)
         assert exact <= error <= 1.05 * exact  # Wilson-Hilferty: slightly conservative
         per_match = 0.8 * np.sqrt(stats.chi2.ppf(1 - 0.001 / count, 2))
         assert residual == pytest.approx(per_match, rel=1e-6)
-    assert [float(x) for x in jp.acceptance_thresholds(3, 1.0)] == [0.0, 0.0]
+    assert [float(x) for x in jp.apps.acceptance_thresholds(3, 1.0)] == [0.0, 0.0]
 
 
 def test_right_error_passes_the_threshold_at_the_stated_rate():
@@ -139,7 +140,7 @@ def test_right_error_passes_the_threshold_at_the_stated_rate():
     # limit: N e^2 / sigma^2 ~ chi2(2N - 6)): the bound holds with the confidence.
     rng = np.random.default_rng(0)
     count, sigma, conf = 8, 0.8, 0.99
-    bound = float(jp.acceptance_thresholds(count, sigma, conf)[0])
+    bound = float(jp.apps.acceptance_thresholds(count, sigma, conf)[0])
     J = rng.normal(size=(2 * count, 6))
     P = np.eye(2 * count) - J @ np.linalg.pinv(J)  # residual projector of a 6-parameter fit
     r = rng.normal(scale=sigma, size=(20000, 2 * count)) @ P.T
@@ -173,7 +174,7 @@ def _hypotheses():
     for name in ("box", "hexagonal_prism", "l_block", "pyramid"):
         # (A right hypothesis fails the rule with probability about 2 (1 - confidence):
         # with seed 3 the pyramid's five matches do, by a 3.3-sigma noise draw.)
-        scene = jp.model_bench(name, seed=5)
+        scene = jp.apps.model_bench(name, seed=5)
         k = len(scene.visible)
         out.append((Hypothesis(scene.model, scene.visible, scene.image_points, name), True))
         # The wrong model for these image points (same number of matches).
@@ -182,7 +183,7 @@ def _hypotheses():
             (Hypothesis(other, np.arange(k), scene.image_points, f"{other.name} on {name}"), False)
         )
     # Different pose, different seed: a right hypothesis with 19 matches (padding target).
-    scene = jp.model_bench("cross_prism", seed=4)
+    scene = jp.apps.model_bench("cross_prism", seed=4)
     out.append((Hypothesis(scene.model, scene.visible, scene.image_points, "cross: 19"), True))
     return bench, out
 
@@ -191,7 +192,7 @@ def _hypotheses():
 def verdicts():
     bench, cases = _hypotheses()
     hyps = [h for h, _ in cases]
-    return bench, cases, jp.verify_hypotheses(bench.camera, hyps, noise=bench.noise)
+    return bench, cases, jp.apps.verify_hypotheses(bench.camera, hyps, noise=bench.noise)
 
 
 def test_right_hypotheses_accepted_wrong_ones_rejected(verdicts):
@@ -240,7 +241,7 @@ def test_accepted_poses_are_the_opencv_optimum(verdicts):
 def test_rule_follows_the_noise_level(verdicts):
     # Told the noise is ten times smaller, the same right matches no longer pass.
     bench, cases, _ = verdicts
-    result = jp.verify_hypotheses(bench.camera, [h for h, _ in cases], noise=bench.noise / 10)
+    result = jp.apps.verify_hypotheses(bench.camera, [h for h, _ in cases], noise=bench.noise / 10)
     assert not any(v.accepted for v in result)
     assert all(v.status == Status.REJECTED for v in result)
 
@@ -263,13 +264,13 @@ def test_verify_hypotheses_validation():
     ]
     for args, kwargs, match in cases:
         with pytest.raises(ValueError, match=match):
-            jp.verify_hypotheses(*args, **kwargs)
+            jp.apps.verify_hypotheses(*args, **kwargs)
 
 
 def test_model_bench_validation():
     with pytest.raises(ValueError, match="model"):
-        jp.model_bench("sphere")
+        jp.apps.model_bench("sphere")
     with pytest.raises(ValueError, match="noise"):
-        jp.model_bench("box", noise=-1.0)
+        jp.apps.model_bench("box", noise=-1.0)
     with pytest.raises(ValueError, match="R"):
-        jp.model_bench("box", R=2 * np.eye(3))
+        jp.apps.model_bench("box", R=2 * np.eye(3))

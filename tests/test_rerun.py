@@ -58,7 +58,7 @@ def _answer(bench, res) -> jp.Solution:
     ok = np.array([Status(int(s)).succeeded for s in res.status])
     k = int(np.argmin(np.where(ok, res.error, np.inf)))
     R, t = res.pose.R[k], res.pose.t[k]
-    e = jax.jit(jp.pose_error)(bench.camera, R, t, bench.model_points, bench.image_points)
+    e = jax.jit(jp.geometry.pose_error)(bench.camera, R, t, bench.model_points, bench.image_points)
     return jp.Solution(jp.Pose(R, t), res.error[k], np.asarray(e), res.status[k], True, k)
 
 
@@ -66,8 +66,8 @@ def test_solution_recording(tmp_path, bench, mixed_result):
     sol = _answer(bench, mixed_result)
     picture = np.full((bench.image_size[1], bench.image_size[0], 3), 40, np.uint8)
     path = tmp_path / "solve.rrd"
-    rec = jp.rerun_recording(path, name="bench")
-    jp.log_solution(
+    rec = jp.viz.rerun_recording(path, name="bench")
+    jp.viz.log_solution(
         rec,
         bench.camera,
         bench.model_points,
@@ -79,7 +79,7 @@ def test_solution_recording(tmp_path, bench, mixed_result):
         image=picture,
         image_size=bench.image_size,
     )
-    jp.close_recording(rec)
+    jp.viz.close_recording(rec)
     verify_recording(path)
     rows = _rows(path)
     expected = {
@@ -107,7 +107,7 @@ def test_solution_recording(tmp_path, bench, mixed_result):
     assert RrdReader(path).blueprints(), "the default blueprint is stored with the recording"
 
     # The camera: centre and orientation in the world, intrinsics and image size.
-    centre = np.asarray(jax.jit(jp.camera_centre)(bench.camera))
+    centre = np.asarray(jax.jit(jp.geometry.camera_centre)(bench.camera))
     np.testing.assert_allclose(
         _only(rows, "/world/camera", "Transform3D:translation")[0], centre, rtol=1e-6
     )
@@ -183,9 +183,9 @@ def test_experiment_recording(tmp_path, bench, mixed_result):
         threshold=float(res.threshold),
     )
     path = tmp_path / "experiment.rrd"
-    rec = jp.rerun_recording(path)
-    jp.log_experiment(rec, bench, result, res)
-    jp.close_recording(rec)
+    rec = jp.viz.rerun_recording(path)
+    jp.viz.log_experiment(rec, bench, result, res)
+    jp.viz.close_recording(rec)
     verify_recording(path)
     rows = _rows(path)
     used = set(np.flatnonzero(result.used).tolist())
@@ -212,8 +212,8 @@ def test_three_point_only_and_points_only(tmp_path, bench, mixed_result):
         jp.Pose(bench.R, bench.t), np.float64(0.0), np.float64(0.0), np.int32(0), True, 0
     )
     path = tmp_path / "points.rrd"
-    rec = jp.rerun_recording(path)
-    jp.log_solution(
+    rec = jp.viz.rerun_recording(path)
+    jp.viz.log_solution(
         rec,
         bench.camera,
         bench.model_points,
@@ -221,7 +221,7 @@ def test_three_point_only_and_points_only(tmp_path, bench, mixed_result):
         sol,
         triplets=mixed_result.initial,
     )
-    jp.close_recording(rec)
+    jp.viz.close_recording(rec)
     verify_recording(path)
     rows = _rows(path)
     assert "/world/model/recovered" not in rows and "/world/triplets/three_point" not in rows
@@ -256,13 +256,13 @@ def test_pointing_recording(tmp_path, bench):
     point = np.array([1.0, 2.0, 10.0]) @ bench.R.T + bench.t
     axes = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
     S = axes @ np.diag([4.0, 1.0, 0.25]) @ axes.T
-    hit = jp.Hit(point, np.int32(0), np.float64(2000.0), bench.R[:, 2], S, np.int32(0))
+    hit = jp.apps.Hit(point, np.int32(0), np.float64(2000.0), bench.R[:, 2], S, np.int32(0))
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    robot = jp.default_robot()._replace(base_R=turn, base_t=np.array([10.0, -5.0, 2.0]))
+    robot = jp.apps.default_robot()._replace(base_R=turn, base_t=np.array([10.0, -5.0, 2.0]))
     joints = np.array([30.0, -40.0, 0.5, 0.3])
     path = tmp_path / "point.rrd"
-    rec = jp.rerun_recording(path)
-    jp.log_pointing(
+    rec = jp.viz.rerun_recording(path)
+    jp.viz.log_pointing(
         rec,
         bench.camera,
         (400.0, 250.0),
@@ -273,7 +273,7 @@ def test_pointing_recording(tmp_path, bench):
         joints=joints,
         n_sigma=2.0,
     )
-    jp.close_recording(rec)
+    jp.viz.close_recording(rec)
     verify_recording(path)
     rows = _rows(path)
     e = {
@@ -295,17 +295,17 @@ def test_pointing_recording(tmp_path, bench):
     outline = np.asarray(_only(rows, "/world/pointing/face", "LineStrips3D:strips")[0])
     top = bench.model.vertices[list(bench.model.faces[0])] @ bench.R.T + bench.t
     np.testing.assert_allclose(outline[:-1], top, atol=1e-3)
-    state = jax.jit(jp.forward_kinematics)(robot, joints)
+    state = jax.jit(jp.apps.forward_kinematics)(robot, joints)
     strips = _only(rows, "/world/robot/links", "LineStrips3D:strips")
     np.testing.assert_allclose(strips[-1], [state.wrist, state.tip], atol=1e-3)
     # Without a hit nor a robot: the click and its ray only.
-    rec = jp.rerun_recording(tmp_path / "miss.rrd")
-    jp.log_pointing(
+    rec = jp.viz.rerun_recording(tmp_path / "miss.rrd")
+    jp.viz.log_pointing(
         rec, bench.camera, (5.0, 5.0), None, (bench.R, bench.t), model_points=bench.model_points
     )
-    jp.close_recording(rec)
+    jp.viz.close_recording(rec)
     rows = _rows(tmp_path / "miss.rrd")
     assert "/world/pointing/ray" in rows and "/world/camera/image/click" in rows
     assert not any(p.startswith(("/world/robot", "/world/pointing/point")) for p in rows)
     with pytest.raises(ValueError, match="model_points or a polyhedron"):
-        jp.log_pointing(rec, bench.camera, (5.0, 5.0), None, (bench.R, bench.t))
+        jp.viz.log_pointing(rec, bench.camera, (5.0, 5.0), None, (bench.R, bench.t))

@@ -213,7 +213,7 @@ def test_the_robot_reaches_points_on_the_bench_object():
     bench = jp.default_bench()
     model = bench.model
     world = model.vertices @ bench.R.T + bench.t
-    centre = np.asarray(jp.camera_centre(bench.camera))
+    centre = np.asarray(jp.geometry.camera_centre(bench.camera))
     outline = model.vertices[:12, :2].astype(np.float32).reshape(-1, 1, 2)
     rng = np.random.default_rng(4)
     points, normals = [], []

@@ -128,7 +128,7 @@ def test_robust_in_float32():
 def _opencv_problem(seed, outliers):
     """A random scene in OpenCV's convention with `outliers` matches moved 30-200 px away."""
     rng = np.random.default_rng(seed)
-    s = jp.random_scene(rng, N, noise=0.5, world_camera=False)
+    s = jp.apps.random_scene(rng, N, noise=0.5, world_camera=False)
     img = s.image_points.copy()
     wrong = np.sort(rng.choice(N, outliers, replace=False))
     angle = rng.uniform(0, 2 * np.pi, outliers)
@@ -162,7 +162,7 @@ def test_solve_pnp_ransac_against_the_right_matches(seed, outliers):
 
 def test_solve_pnp_ransac_failure_and_distortion():
     rng = np.random.default_rng(3)
-    s = jp.random_scene(rng, N, noise=0.0, world_camera=False)
+    s = jp.apps.random_scene(rng, N, noise=0.0, world_camera=False)
     K = s.camera[:, :3]
     # Pure noise: no pose with min_inliers consistent matches.
     garbage = rng.uniform(0, 640, (N, 2))
@@ -197,7 +197,7 @@ def test_solve_pnp_ransac_failure_and_distortion():
     ],
 )
 def test_solve_pnp_ransac_option_validation(kwargs, name):
-    s = jp.random_scene(np.random.default_rng(0), 8, world_camera=False)
+    s = jp.apps.random_scene(np.random.default_rng(0), 8, world_camera=False)
     with pytest.raises(ValueError, match=name):
         jp.solve_pnp_ransac(s.model_points, s.image_points, s.camera[:, :3], **kwargs)
 

@@ -1,4 +1,4 @@
-"""Sharded and chunked batches (`jaxpose.run_batched`, `solve_batch`, `solve_pnp_batch`).
+"""Sharded and chunked batches (`jaxpose.api.run_batched`, `solve_batch`, `solve_pnp_batch`).
 
 The multi-device checks run in a subprocess with 8 forced CPU host devices
 (`XLA_FLAGS=--xla_force_host_platform_device_count=8`): this process keeps one device
@@ -57,7 +57,7 @@ _SETUP = """
     assert jax.device_count() == 8, jax.devices()
     rng = np.random.default_rng(0)
     B, n = 37, 6  # not a multiple of 8 nor of the chunks: every path pads
-    scenes = [jp.random_scene(rng, n, noise=0.5, world_camera=world) for world in
+    scenes = [jp.apps.random_scene(rng, n, noise=0.5, world_camera=world) for world in
               [False] * B]
     K = scenes[0].camera[:, :3]
     obj = np.stack([s.model_points for s in scenes])
@@ -93,7 +93,7 @@ def test_sharded_and_chunked_equal_single_device(tmp_path):
     pnp("sharded_chunked", chunk_size=16)
 
     # JAX-native: world cameras, one per problem, and a mask.
-    world = [jp.random_scene(rng, n, noise=0.5) for _ in range(B)]
+    world = [jp.apps.random_scene(rng, n, noise=0.5) for _ in range(B)]
     C = np.stack([s.camera for s in world])
     m = np.stack([s.model_points for s in world])
     u = np.stack([s.image_points for s in world])
@@ -152,7 +152,7 @@ def test_run_batched_chunks_equal_one_call(chunk_size):
     rng = np.random.default_rng(0)
     x, y = rng.normal(size=(23, 5)), rng.integers(0, 9, size=(23, 2, 2))
     ref = jax.tree.map(np.asarray, _toy(np.float64(2.0), x, y))
-    out = jp.run_batched(_toy, (np.float64(2.0),), (x, y), chunk_size=chunk_size)
+    out = jp.api.run_batched(_toy, (np.float64(2.0),), (x, y), chunk_size=chunk_size)
     assert jax.tree.structure(out) == jax.tree.structure(ref)
     for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(ref), strict=True):
         assert isinstance(a, np.ndarray) and a.dtype == b.dtype
@@ -165,11 +165,11 @@ def test_run_batched_static_arguments():
 
     scaled_jit = jax.jit(scaled, static_argnums=1, static_argnames="offset")
     x = np.arange(10.0)
-    trailing = jp.run_batched(
+    trailing = jp.api.run_batched(
         lambda x, f, offset=0.0: scaled_jit(x, f, offset=offset), (), (x,), static=(3.0,)
     )
     np.testing.assert_array_equal(trailing, 3 * x)
-    keywords = jp.run_batched(
+    keywords = jp.api.run_batched(
         scaled_jit, (), (x,), static={"factor": 2.0, "offset": 1.0}, chunk_size=4
     )
     np.testing.assert_array_equal(keywords, 2 * x + 1)
@@ -179,25 +179,25 @@ def test_run_batched_rejects_bad_arguments():
     x = np.zeros((4, 2))
     for chunk_size in (0, -1, 1.5, True, "8"):
         with pytest.raises(ValueError, match="chunk_size"):
-            jp.run_batched(_toy, (1.0,), (x, x), chunk_size=chunk_size)
+            jp.api.run_batched(_toy, (1.0,), (x, x), chunk_size=chunk_size)
     for devices in (0, -2, len(jax.devices()) + 1, "cpu", [], [1], 2.0):
         with pytest.raises(ValueError, match="devices"):
-            jp.run_batched(_toy, (1.0,), (x, x), devices=devices)
+            jp.api.run_batched(_toy, (1.0,), (x, x), devices=devices)
     with pytest.raises(ValueError, match="batch"):
-        jp.run_batched(_toy, (1.0,), (x, np.zeros((5, 2))))
+        jp.api.run_batched(_toy, (1.0,), (x, np.zeros((5, 2))))
     with pytest.raises(ValueError, match="batch"):
-        jp.run_batched(_toy, (1.0,), (np.zeros((0, 2)), np.zeros((0, 2))))
+        jp.api.run_batched(_toy, (1.0,), (np.zeros((0, 2)), np.zeros((0, 2))))
 
 
 def test_batch_devices_and_mesh():
     devices = jax.devices()
-    assert jp.batch_devices() == tuple(devices)
-    assert jp.batch_devices(1) == (devices[0],)
-    assert jp.batch_devices(devices[0]) == (devices[0],)
-    assert jp.batch_devices(list(devices)) == tuple(devices)
+    assert jp.api.batch_devices() == tuple(devices)
+    assert jp.api.batch_devices(1) == (devices[0],)
+    assert jp.api.batch_devices(devices[0]) == (devices[0],)
+    assert jp.api.batch_devices(list(devices)) == tuple(devices)
     with pytest.raises(ValueError, match="repeat"):
-        jp.batch_devices([devices[0], devices[0]])
-    mesh = jp.batch_mesh()
+        jp.api.batch_devices([devices[0], devices[0]])
+    mesh = jp.api.batch_mesh()
     assert mesh.axis_names == ("batch",) and mesh.devices.size == len(devices)
 
 

@@ -144,7 +144,7 @@ def solve_pnp_batch(
 
     `chunk_size`: at most this many problems per compiled call (bounded memory; `None`:
     all at once); `devices`: the batch is split over these (`None`: all of
-    `jax.devices()`; an int: the first ones); see `jaxpose.run_batched`.
+    `jax.devices()`; an int: the first ones); see `jaxpose.api.run_batched`.
 
     **Returns:** `(ok (B,), rvecs (B, 3), tvecs (B, 3))`, OpenCV's conventions.
     """

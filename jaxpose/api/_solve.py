@@ -40,7 +40,7 @@ class Solution(NamedTuple):
     - `pose_error`: the paper's pose error (model units, e.g. mm).
     - `status`: `Status` code of the answer (`Status(int(status)).message`).
     - `accepted`: whether a pose was accepted (`ok` of `solve_pnp`).
-    - `triplet`: index (into `jaxpose.triplet_indices(n, max_triplets)`) of the triplet it
+    - `triplet`: index (into `jaxpose.strategy.triplet_indices(n, max_triplets)`) of the triplet it
       came from.
     """
 
@@ -123,7 +123,7 @@ def solve_many(
     The difference is the cost: under a plain `vmap`, every problem pays for the mixed
     algorithm's full Levenberg-Marquardt buffer (`vmap` turns its "only when needed" into
     "always"); here the triplets of the whole batch that need it share one buffer
-    (`jaxpose.mixed_from_initial_batch`), and the cheap steps run in cache-sized passes.
+    (`jaxpose.strategy.mixed_from_initial_batch`), and the cheap steps run in cache-sized passes.
     Arguments as `solve` (`model`, `image`, `mask` with a leading batch axis); pure, for
     `jit` and `grad`.
     """
@@ -332,7 +332,7 @@ def solve_batch(
     - `masks`: optional `(B, n)` bool, which matches each problem uses.
     - `options`, `**changes`: as `jaxpose.solve` (an `Options`, and keyword shorthands
       for its fields: `method`, `threshold`, `triplet_budget`, ...).
-    - `chunk_size`, `devices`: see `jaxpose.run_batched`.
+    - `chunk_size`, `devices`: see `jaxpose.api.run_batched`.
 
     **Returns:** a `Solution` whose fields have a leading `B` axis (jax arrays on the
     default device). Problems with non-finite values give `status` `NOT_FINITE` and finite

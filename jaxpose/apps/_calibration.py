@@ -283,7 +283,7 @@ def calibrate(
     - `points`, `pixels`, `mask`, `flat_tol`: as `dlt`.
     - `rtol`, `atol`: optimistix's tolerances (default `1e-10` / `1e-12` in float64,
       `1e-5` / `1e-6` in float32).
-    - `gtol`: stationarity test at the end, as `jaxpose.nonlinear` (default `1e-6` in
+    - `gtol`: stationarity test at the end, as `jaxpose.solvers.nonlinear` (default `1e-6` in
       float64, `1e-2` in float32); an exact fit (error below `sqrt(eps)` times the
       pixels' spread) counts as converged.
     - `max_steps`: Levenberg-Marquardt's iteration budget.
@@ -456,7 +456,7 @@ def calibrate_with_robot(
     the visible pairs (float64).
 
     **Returns:** `(calibration, pairs)`; compare `calibration.camera` with the true
-    `camera` (e.g. by `jaxpose.decompose_camera` or reprojection).
+    `camera` (e.g. by `jaxpose.geometry.decompose_camera` or reprojection).
     """
     if joints is None:
         joints = led_joint_grid(robot)

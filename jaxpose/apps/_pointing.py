@@ -1,7 +1,7 @@
 """Pointing (the paper's Section 6): a clicked pixel -> the 3D point of the object under it.
 
 The operator clicks a pixel `(u, v)` on a recognised object. Its visual ray leaves the
-camera centre `o` along the unit direction `d` (`jaxpose.backproject`),
+camera centre `o` along the unit direction `d` (`jaxpose.geometry.backproject`),
 
 $$ x(\\lambda) = o + \\lambda \\, d, \\qquad \\lambda > 0, $$
 
@@ -322,8 +322,8 @@ def pick(
 ) -> Hit:
     """The 3D point of the object under a clicked pixel, its face and its covariance.
 
-    The visual ray of `pixel` (from `jaxpose.camera_centre(camera)` along
-    `jaxpose.backproject`, in front of the camera) is intersected with every face of the
+    The visual ray of `pixel` (from `jaxpose.geometry.camera_centre(camera)` along
+    `jaxpose.geometry.backproject`, in front of the camera) is intersected with every face of the
     object at `pose`; the nearest intersection inside a face wins (see the module
     docstring). Vmap over clicks: `jax.vmap(pick, in_axes=(None, None, None, 0))`.
 

@@ -2,6 +2,7 @@
 small-movement linear solver (rotation vector, Gauss-Newton), the Levenberg-Marquardt solver
 (quaternion, optimistix), the residuals they minimise, the status codes they report.
 """
+
 from ._linear import LinearResult as LinearResult
 from ._linear import linear as linear
 from ._nonlinear import NonlinearResult as NonlinearResult

@@ -96,7 +96,7 @@ class Options:
     - `rel_threshold`: the adaptive threshold's margin over the best error (a fraction;
       default `0.01`).
     - `min_area`: the image-triangle area (px^2) below which a triplet counts as
-      aligned (`jaxpose.three_point`; default `40.0`).
+      aligned (`jaxpose.solvers.three_point`; default `40.0`).
     - `collinear_tol`: model-triangle collinearity tolerance (scale-free; default `5e-3`).
     - `linear_iterations`: steps of each run of the linear method (default `5`).
     - `nonlinear_budget`: most triplets per problem sent to Levenberg-Marquardt, those of
@@ -109,10 +109,10 @@ class Options:
     - `max_steps`: Levenberg-Marquardt's iteration budget (default `50`; the retries get
       a multiple of it, see `jaxpose.mixed`).
     - `max_triplets`: above this many triplets (`C(n, 3)`; n = 24 gives 2024) a fixed
-      seeded sample of this many is used instead of all (`jaxpose.triplet_indices`;
+      seeded sample of this many is used instead of all (`jaxpose.strategy.triplet_indices`;
       default `2000`; `None`: all).
     - `triplet_budget`: use only this many triplets, the ones with the largest image
-      triangles (`jaxpose.spread_triplets`): the fast path for large batches of easy
+      triangles (`jaxpose.strategy.spread_triplets`): the fast path for large batches of easy
       problems (default `None`: all of them).
     - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
       `None`: a size that grows with the batch, see `mixed_from_initial_batch`).

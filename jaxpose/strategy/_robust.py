@@ -1,7 +1,7 @@
 r"""Robust mode: pose recovery when some of the matches are wrong.
 
 For one problem, as one fixed-shape batch (no random sampling: every triplet, or the
-fixed seeded sample of `jaxpose.triplet_indices` above `max_triplets`):
+fixed seeded sample of `jaxpose.strategy.triplet_indices` above `max_triplets`):
 
 1. the three-point method on every triplet, all four roots (near-real ones included);
 2. every root scored by consensus over all matches: match `i` is an inlier of a pose
@@ -51,7 +51,7 @@ class RobustResult(NamedTuple):
     - `status`: `OK` (at least `min_inliers` inliers), `REJECTED` (fewer),
       `NO_SOLUTION` (no triplet gave a pose), `TOO_FEW_POINTS` (fewer than 3 matches)
       or `NOT_FINITE`.
-    - `triplet`: index (into `jaxpose.triplet_indices(n, max_triplets)`) of the winning
+    - `triplet`: index (into `jaxpose.strategy.triplet_indices(n, max_triplets)`) of the winning
       triplet; `root`: which of its four three-point slots.
     - `refined`: whether the pose is the refined one (else the winning root itself).
     - `cost`: the truncated cost of the pose (px^2).

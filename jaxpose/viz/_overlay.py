@@ -436,7 +436,7 @@ def render(
 
 
 def render_bench(bench: Bench, **kwargs) -> np.ndarray:
-    """`render` of a bench (`jaxpose.default_bench` or `jaxpose.model_bench`): its model at
+    """`render` of a bench (`jaxpose.default_bench` or `jaxpose.apps.model_bench`): its model at
     its true pose, seen by its camera, at its image size. `kwargs` go to `render`."""
     if not isinstance(bench, Bench):
         raise ValueError(f"bench must be a Bench, got {type(bench).__name__}")

@@ -33,7 +33,7 @@ Entity paths (world units are the model's, e.g. mm; pixels in the image space):
 | `world/pointing/...`, `world/robot/...` | a pointing command (`log_pointing`) |
 
 Per-triplet data lie on the `triplet` sequence timeline (the triplet's index into
-`jaxpose.triplet_indices`). `rerun_blueprint` lays them out: 3D view and image view
+`jaxpose.strategy.triplet_indices`). `rerun_blueprint` lays them out: 3D view and image view
 on top, the error series and the log below.
 """
 

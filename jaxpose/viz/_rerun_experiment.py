@@ -38,7 +38,7 @@ def log_experiment(
     hypothesis and status; Table 1 as the summary.
 
     **Arguments:**
-    - `bench`: the `jaxpose.Bench` the experiment ran on.
+    - `bench`: the `jaxpose.apps.Bench` the experiment ran on.
     - `result`: `jaxpose`'s `ExperimentResult` of `run_experiment(bench)`.
     - `mixed`: `jaxpose.mixed` on the same problem (same threshold), for the poses.
     - `image`: the camera's image (a file path, or an RGB array), e.g. a rendering.

@@ -110,7 +110,7 @@ def log_pointing(
     summary: list[str] | None = None,
     layout: bool = True,
 ) -> None:
-    """Log a pointing command (`jaxpose.pick`, then the robot to the point): the camera and
+    """Log a pointing command (`jaxpose.apps.pick`, then the robot to the point): the camera and
     its image, the object's wireframe at `pose`, the clicked pixel and its visual ray, the
     3D point with its covariance ellipsoid, the face hit, and the robot at `joints`.
 
@@ -134,13 +134,13 @@ def log_pointing(
     **Arguments:**
     - `camera`: `C` `(3, 4)`; `K`, `R_wc`, `t_wc`, `image`, `image_size`: see `log_camera`.
     - `pixel`: `(2,)` the clicked pixel `(u, v)`.
-    - `hit`: `jaxpose.pick`'s `Hit` (numpy or JAX arrays); None or a status other than
+    - `hit`: `jaxpose.apps.pick`'s `Hit` (numpy or JAX arrays); None or a status other than
       `OK`: no face there, only the ray is drawn.
     - `pose`: `(R, t)` of the object, model to world (the recovered pose).
     - `polyhedron`: the object, for its wireframe and the face outline.
     - `model_points`: `(n, 3)` matched model points (default: the polyhedron's vertices).
-    - `robot`, `joints`: a `jaxpose.Robot` and its `(4,)` joint command (e.g.
-      `jaxpose.inverse_kinematics(...).joints`); the robot is drawn when both are given.
+    - `robot`, `joints`: a `jaxpose.apps.Robot` and its `(4,)` joint command (e.g.
+      `jaxpose.apps.inverse_kinematics(...).joints`); the robot is drawn when both are given.
     - `true_point`: `(3,)` the true surface point under the click, when known.
     - `n_sigma`: size of the drawn ellipsoid in standard deviations.
     - `summary`: Markdown lines for `summary` (default: a short description).

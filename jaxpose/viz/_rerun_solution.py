@@ -91,7 +91,7 @@ def log_triplets(
 
     **Arguments:**
     - `camera`, `model_points` `(n, 3)`, `image_points` `(n, 2)`: the problem.
-    - `result`: `jaxpose.mixed`'s `MixedResult`, or `jaxpose.initial_poses`'s `Initial`
+    - `result`: `jaxpose.mixed`'s `MixedResult`, or `jaxpose.strategy.initial_poses`'s `Initial`
       (the three-point method alone), for this problem (numpy or JAX arrays).
     - `polyhedron`: the model, for wireframes (else the matched points are drawn).
     - `errors`, `pose_errors`: `(T,)` arrays per method name; default: the Eq. 8 errors
@@ -252,7 +252,7 @@ def log_solution(
       to `jaxpose.solve`.
     - `solution`: its `Solution`.
     - `triplets`: optionally, the per-triplet results (`jaxpose.mixed`'s `MixedResult`, or
-      `jaxpose.initial_poses`'s `Initial`), see `log_triplets`.
+      `jaxpose.strategy.initial_poses`'s `Initial`), see `log_triplets`.
     - `polyhedron`: the model with edges, for wireframes.
     - `true_pose`: `(R, t)` ground truth.
     - `image`, `image_size`, `K`, `R_wc`, `t_wc`: see `log_camera`.
