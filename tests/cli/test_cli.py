@@ -16,7 +16,7 @@ from jaxpose.cli._main import build_parser, main
 from jaxpose.cli._problem_read import read_problem
 from jaxpose.cli._problem_write import bench_problem
 
-DATA = Path(__file__).parent / "data" / "chessboard"
+DATA = Path(__file__).parents[1] / "data" / "chessboard"
 
 
 def _run(capsys, *argv):

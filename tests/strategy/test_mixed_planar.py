@@ -17,7 +17,7 @@ import pytest
 import jaxpose as jp
 from jaxpose.strategy._mixed import _planar_partner
 
-DATA = Path(__file__).parent / "data" / "planar_mixed_reproducers.json"
+DATA = Path(__file__).parents[1] / "data" / "planar_mixed_reproducers.json"
 ABS_TOL = 1e-6  # px: at the optimum (the benchmark's criterion)
 
 

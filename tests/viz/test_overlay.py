@@ -12,7 +12,7 @@ from matplotlib.path import Path as PolygonPath
 
 import jaxpose as jp
 
-DATA = Path(__file__).parent / "data" / "chessboard"
+DATA = Path(__file__).parents[1] / "data" / "chessboard"
 K = np.array([[400.0, 0.0, 160.0], [0.0, 400.0, 120.0], [0.0, 0.0, 1.0]])
 CAMERA = np.column_stack([K, np.zeros(3)])
 

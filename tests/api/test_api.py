@@ -12,7 +12,7 @@ import pytest
 
 import jaxpose as jp
 
-DATA = Path(__file__).parent / "data" / "chessboard"
+DATA = Path(__file__).parents[1] / "data" / "chessboard"
 
 
 def _opencv_scene(rng, n=10, noise=1.0, kind="ordinary"):

@@ -22,7 +22,7 @@ import jaxpose as jp
 from jaxpose.api._batch import _pad_rows
 from jaxpose.api._solve import _argument_order
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TOL = 1e-12
 
 
