@@ -22,6 +22,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from ..geometry._numerics import masked_centroid, masked_mean
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import rotvec_to_matrix
 from ._residuals import pixel_residuals
@@ -47,10 +48,8 @@ def chart_at(pose: Pose, obs: Observations, world: Float[Array, "n 3"] | None = 
 
 
 def _chart(pose: Pose, world: Float[Array, "n 3"], mask: Bool[Array, " n"]) -> Chart:
-    w = mask.astype(world.dtype)
-    count = jnp.maximum(jnp.sum(w), 1)
-    centre = jnp.sum(world * w[:, None], axis=0) / count
-    spread = jnp.sum(jnp.sum((world - centre[None, :]) ** 2, axis=1) * w) / count
+    centre = masked_centroid(world, mask)
+    spread = masked_mean(jnp.sum((world - centre[None, :]) ** 2, axis=1), mask)
     positive = spread > 0
     length = jnp.where(positive, jnp.sqrt(jnp.where(positive, spread, 1)), 1)
     return Chart(pose, centre, length)
@@ -79,7 +78,9 @@ def chart_points(
     return (world - chart.centre[None, :]) @ Rw.T + (chart.centre + chart.length * xi[3:])[None, :]
 
 
-def chart_residuals(xi: Float[Array, " 6"], chart: Chart, obs: Observations) -> Float[Array, " 2n"]:
+def chart_residuals(
+    xi: Float[Array, " 6"], chart: Chart, obs: Observations
+) -> Float[Array, " two_n"]:
     """Eq. 8's pixel residuals `(2n,)` at chart coordinates `xi` (zero where masked),
     through `chart_pose` (so differentiable with respect to `obs`, the model included)."""
     return pixel_residuals(transform(chart_pose(xi, chart), obs.model), obs).reshape(-1)

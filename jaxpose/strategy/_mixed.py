@@ -66,6 +66,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..geometry._numerics import masked_centroid
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import rotvec_to_matrix
 from ..solvers._linear import LinearResult, linear
@@ -141,7 +142,7 @@ def _planar_partner(obs: Observations, pose: Pose) -> tuple[Pose, Array]:
     dtype = pose.R.dtype
     w = obs.mask.astype(dtype)
     count = jnp.maximum(jnp.sum(w), 1)
-    centre = jnp.sum(obs.model * w[:, None], axis=0) / count
+    centre = masked_centroid(obs.model, w)
     X = (obs.model - centre[None, :]) * w[:, None]
     evals, evecs = jnp.linalg.eigh(X.T @ X / count)  # ascending
     flat = (evals[0] <= FLAT_TOL**2 * evals[1]) & (evals[1] > 0) & (jnp.sum(w) >= 4)
