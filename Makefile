@@ -21,6 +21,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/pyright
 	$(MKDOCS) build --strict --site-dir site
 	$(BIN)/python -m pytest -n 2 --dist loadfile
 

@@ -34,6 +34,37 @@ def _table_rows(result: dict, kind: str, sweep: str):
     return header, rows
 
 
+def _sweep_labels(block: dict, sweep: str) -> tuple[str, str, str]:
+    """What one sweep holds fixed ('n = 10'), what it varies (the column label) and the
+    trials of its cells ('200, 200, 50')."""
+    fixed = f"n = {block['n']}" if sweep == "sigma" else f"sigma = {block['sigma']:g} px"
+    label = "sigma (px)" if sweep == "sigma" else "n"
+    return fixed, label, ", ".join(str(c["trials"]) for c in block["cells"])
+
+
+def chessboard_cells(
+    image: dict, reference: tuple[str, str], cv2: tuple[str, str], joined: str | None = None
+) -> list[str]:
+    """One found chessboard image as table cells: its name; the rotation (deg) and
+    translation (mm) differences of jaxpose to the reference (formats `reference`) and to
+    `cv2.solvePnP` (formats `cv2`), each pair one cell `joined` by that text when given;
+    then the RMS reprojection errors of the reference, cv2 and jaxpose, and of cv2 and
+    jaxpose on undistorted pixels."""
+    cells = [image["image"]]
+    for diff, formats in (
+        (image["jaxpose_vs_reference"], reference),
+        (image["jaxpose_vs_cv2"], cv2),
+    ):
+        pair = [
+            format(diff["rotation_deg"], formats[0]),
+            format(diff["translation_mm"], formats[1]),
+        ]
+        cells += pair if joined is None else [joined.join(pair)]
+    rms, undistorted = image["rms_px"], image["rms_undistorted_px"]
+    cells += [f"{rms[k]:.4f}" for k in ("reference", "cv2", "jaxpose")]
+    return cells + [f"{undistorted[k]:.4f}" for k in ("cv2", "jaxpose")]
+
+
 LEGEND = (
     "[k]: over the first k trials of the cell only; (f failed): no pose returned (left "
     "out of the medians); -: not run"
@@ -61,9 +92,7 @@ def print_tables(result: dict, console) -> None:
     for kind, sweeps in result["synthetic"].items():
         for sweep, block in sweeps.items():
             header, rows = _table_rows(result, kind, sweep)
-            fixed = f"n = {block['n']}" if sweep == "sigma" else f"sigma = {block['sigma']:g} px"
-            label = "sigma (px)" if sweep == "sigma" else "n"
-            trials = ", ".join(str(c["trials"]) for c in block["cells"])
+            fixed, label, trials = _sweep_labels(block, sweep)
             table = Table(
                 title=f"{kind}, {fixed}: median rotation error (deg) / translation error (%)"
                 f"\ntrials per cell: {trials}",
@@ -108,20 +137,7 @@ def print_tables(result: dict, console) -> None:
             if not im["found"]:
                 table.add_row(im["image"], *(["not found"] + ["-"] * 8))
                 continue
-            a, b = im["jaxpose_vs_reference"], im["jaxpose_vs_cv2"]
-            e, u = im["rms_px"], im["rms_undistorted_px"]
-            table.add_row(
-                im["image"],
-                f"{a['rotation_deg']:.4f}",
-                f"{a['translation_mm']:.3f}",
-                f"{b['rotation_deg']:.2e}",
-                f"{b['translation_mm']:.2e}",
-                f"{e['reference']:.4f}",
-                f"{e['cv2']:.4f}",
-                f"{e['jaxpose']:.4f}",
-                f"{u['cv2']:.4f}",
-                f"{u['jaxpose']:.4f}",
-            )
+            table.add_row(*chessboard_cells(im, (".4f", ".3f"), (".2e", ".2e")))
         console.print(table)
 
 
@@ -131,9 +147,7 @@ def markdown(result: dict) -> str:
     for kind, sweeps in result["synthetic"].items():
         for sweep, block in sweeps.items():
             header, rows = _table_rows(result, kind, sweep)
-            fixed = f"n = {block['n']}" if sweep == "sigma" else f"sigma = {block['sigma']:g} px"
-            label = "sigma (px)" if sweep == "sigma" else "n"
-            trials = ", ".join(str(c["trials"]) for c in block["cells"])
+            fixed, label, trials = _sweep_labels(block, sweep)
             lines += [
                 f"**{kind.replace('_', '-')}, {fixed}**: median rotation error (deg) / "
                 f"translation error (%); trials per cell: {trials}. {LEGEND}.",
@@ -172,14 +186,8 @@ def markdown(result: dict) -> str:
             if not im["found"]:
                 lines.append(f"| {im['image']} | corners not found |||||||||")
                 continue
-            a, b = im["jaxpose_vs_reference"], im["jaxpose_vs_cv2"]
-            e, u = im["rms_px"], im["rms_undistorted_px"]
-            lines.append(
-                f"| {im['image']} | {a['rotation_deg']:.4f} | {a['translation_mm']:.3f} | "
-                f"{b['rotation_deg']:.1e} | {b['translation_mm']:.1e} | "
-                f"{e['reference']:.4f} | {e['cv2']:.4f} | {e['jaxpose']:.4f} | "
-                f"{u['cv2']:.4f} | {u['jaxpose']:.4f} |"
-            )
+            cells = chessboard_cells(im, (".4f", ".3f"), (".1e", ".1e"))
+            lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
 

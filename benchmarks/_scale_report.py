@@ -102,6 +102,23 @@ def print_tables(res: dict, console) -> None:
         console.print(f"compile cache: {c.get('skipped', 'no rows')}")
 
 
+def _plot_hollow(a, xs: list, ys: list, style: str, label: str) -> None:
+    """A second look at the first series of `a` (projected, or CPU time): same colour,
+    hollow markers."""
+    a.loglog(xs, ys, style, mfc="none", color="C0", label=label)
+
+
+def _plot_batch(ax, rows: list[dict], what: str, styles: tuple[str, str, str], **kw) -> None:
+    """One batch configuration (`what`) against B: its time per problem on `ax[0]`, its
+    XLA peak and its RSS growth while running on `ax[1]`."""
+    bs = [r["B"] for r in rows]
+    ax[0].loglog(bs, [r["per_problem_us"] for r in rows], styles[0], **kw, label=f"jaxpose, {what}")
+    peak = [r["memory"]["peak_bytes"] / 2**20 for r in rows]
+    ax[1].loglog(bs, peak, styles[1], **kw, label=f"XLA peak, {what}")
+    rss = [max(r["run_rss_growth_mb"] or 0, 1e-2) for r in rows]
+    ax[1].loglog(bs, rss, styles[2], **kw, label=f"RSS growth while running, {what}")
+
+
 def plot(res: dict, path: Path) -> Path:
     import matplotlib
 
@@ -131,14 +148,8 @@ def plot(res: dict, path: Path) -> Path:
         ax[0, 1].loglog(ns, [r["memory"]["peak_bytes"] / 2**20 for r in rs], style, label=label)
     proj = [r for r in res["n"]["rows"] if r.get("projected_warm_s")]
     if proj:
-        ax[0, 0].loglog(
-            [r["n"] for r in proj],
-            [r["projected_warm_s"] for r in proj],
-            "o",
-            mfc="none",
-            color="C0",
-            label="exhaustive (projected)",
-        )
+        xs, ys = [r["n"] for r in proj], [r["projected_warm_s"] for r in proj]
+        _plot_hollow(ax[0, 0], xs, ys, "o", "exhaustive (projected)")
     sw = res["n"]["switch"]["library_switch_n"]
     for a in ax[0]:
         a.axvline(sw, color="grey", ls=":", lw=1)
@@ -152,56 +163,13 @@ def plot(res: dict, path: Path) -> Path:
     chunks = sorted({r["chunk"] for r in brows if r["chunk_size"] is not None})
     one = sorted((r for r in brows if r["chunk_size"] is None), key=lambda r: r["B"])
     if one:
-        ax[1, 0].loglog(
-            [r["B"] for r in one],
-            [r["per_problem_us"] for r in one],
-            "o-",
-            label="jaxpose, one call",
-        )
-        ax[1, 1].loglog(
-            [r["B"] for r in one],
-            [r["memory"]["peak_bytes"] / 2**20 for r in one],
-            "o-",
-            label="XLA peak, one call",
-        )
-        ax[1, 1].loglog(
-            [r["B"] for r in one],
-            [max(r["run_rss_growth_mb"] or 0, 1e-2) for r in one],
-            "o--",
-            label="RSS growth while running, one call",
-        )
+        _plot_batch(ax[1], one, "one call", ("o-", "o-", "o--"))
     for i, c in enumerate(chunks):
         rs = sorted((r for r in brows if r["chunk"] == c and r["chunk_size"]), key=lambda r: r["B"])
-        ax[1, 0].loglog(
-            [r["B"] for r in rs],
-            [r["per_problem_us"] for r in rs],
-            "s",
-            color=f"C{i + 2}",
-            label=f"jaxpose, chunks of {c}",
-        )
-        ax[1, 1].loglog(
-            [r["B"] for r in rs],
-            [r["memory"]["peak_bytes"] / 2**20 for r in rs],
-            "s",
-            color=f"C{i + 2}",
-            label=f"XLA peak, chunks of {c}",
-        )
-        ax[1, 1].loglog(
-            [r["B"] for r in rs],
-            [max(r["run_rss_growth_mb"] or 0, 1e-2) for r in rs],
-            "x",
-            color=f"C{i + 2}",
-            label=f"RSS growth while running, chunks of {c}",
-        )
+        _plot_batch(ax[1], rs, f"chunks of {c}", ("s", "s", "x"), color=f"C{i + 2}")
     if one:
-        ax[1, 0].loglog(
-            [r["B"] for r in one],
-            [r["per_problem_cpu_us"] for r in one],
-            "o:",
-            color="C0",
-            mfc="none",
-            label="jaxpose, one call, CPU time",
-        )
+        xs, ys = [r["B"] for r in one], [r["per_problem_cpu_us"] for r in one]
+        _plot_hollow(ax[1, 0], xs, ys, "o:", "jaxpose, one call, CPU time")
     cv = res["batch"]["opencv_per_problem_us"]
     ax[1, 0].axhline(cv, color="k", ls="--", lw=1, label="OpenCV SQPnP + RefineLM loop")
     ax[1, 0].axhline(

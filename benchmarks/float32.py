@@ -407,25 +407,23 @@ def main(argv: Sequence[str] | None = None) -> dict:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--serial", action="store_true", help="float64 then float32 (default: side by side)"
+        "--serial",
+        dest="threads",
+        action="store_false",
+        help="float64 then float32 (default: side by side)",
     )
-    parser.add_argument("--out", default=None, help="output folder (default benchmarks/results)")
+    parser.add_argument(
+        "--out",
+        dest="out_dir",
+        metavar="OUT",
+        default=None,
+        help="output folder (default benchmarks/results)",
+    )
     args = parser.parse_args(argv)
     if args.trials is not None and args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
     compilation_cache()
-    return run(
-        args.quick,
-        args.out,
-        kinds=args.kinds,
-        ns=args.ns,
-        sigmas=args.sigmas,
-        trials=args.trials,
-        method=args.method,
-        p3p_n=args.p3p_n,
-        seed=args.seed,
-        threads=not args.serial,
-    )
+    return run(**vars(args))  # every option is named after its keyword of `run`
 
 
 if __name__ == "__main__":

@@ -427,33 +427,27 @@ def run(
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="n in (6, 16, 50), B up to 10^4")
-    parser.add_argument("--out", default=str(RESULTS))
-    parser.add_argument("--n", type=int, nargs="+", default=None, help="numbers of matches")
-    parser.add_argument("--batch", type=int, nargs="+", default=None, help="batch sizes")
+    parser.add_argument("--out", dest="out_dir", metavar="OUT", default=str(RESULTS))
+    parser.add_argument(
+        "--n", dest="n_values", metavar="N", type=int, nargs="+", help="numbers of matches"
+    )
+    parser.add_argument(
+        "--batch", dest="batch_sizes", metavar="BATCH", type=int, nargs="+", help="batch sizes"
+    )
     parser.add_argument("--method", default="mixed")
     parser.add_argument("--repeat", type=int, default=None)
     parser.add_argument("--exhaustive-max", type=int, default=None)
     parser.add_argument("--chunks", type=int, nargs="+", default=[1000, 100])
     parser.add_argument("--one-call-max", type=int, default=1000, help="larger B: chunked")
     parser.add_argument("--in-process", action="store_true", help="no worker processes")
-    parser.add_argument("--no-cache", action="store_true", help="skip the compile-cache runs")
+    parser.add_argument(
+        "--no-cache", dest="cache", action="store_false", help="skip the compile-cache runs"
+    )
     args = parser.parse_args(argv)
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    return run(
-        args.quick,
-        out_dir=args.out,
-        n_values=args.n,
-        batch_sizes=args.batch,
-        method=args.method,
-        repeat=args.repeat,
-        exhaustive_max=args.exhaustive_max,
-        in_process=args.in_process,
-        cache=not args.no_cache,
-        one_call_max=args.one_call_max,
-        chunks=tuple(args.chunks),
-    )
+    return run(**vars(args))  # every option is named after its keyword of `run`
 
 
 if __name__ == "__main__":

@@ -3,9 +3,16 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
-from tables_format import Missing, caption, duration, load, number, share, table
+_ROOT = str(Path(__file__).resolve().parents[2])  # the repository, for `benchmarks`
+if _ROOT not in sys.path:
+    sys.path.insert(0, _ROOT)
+
+from tables_format import Missing, caption, duration, load, number, share, table  # noqa: E402
+
+from benchmarks._accuracy_report import chessboard_cells  # noqa: E402
 
 
 def p3p(results: Path) -> str:
@@ -118,20 +125,7 @@ def chessboard(results: Path) -> str:
         if not im.get("found"):
             rows.append((im["image"], "corners not found", "", "", "", "", "", ""))
             continue
-        ref, cv = im["jaxpose_vs_reference"], im["jaxpose_vs_cv2"]
-        rms, und = im["rms_px"], im["rms_undistorted_px"]
-        rows.append(
-            (
-                im["image"],
-                f"{ref['rotation_deg']:.2g} / {ref['translation_mm']:.2g}",
-                f"{cv['rotation_deg']:.2g} / {cv['translation_mm']:.2g}",
-                f"{rms['reference']:.4f}",
-                f"{rms['cv2']:.4f}",
-                f"{rms['jaxpose']:.4f}",
-                f"{und['cv2']:.4f}",
-                f"{und['jaxpose']:.4f}",
-            )
-        )
+        rows.append(chessboard_cells(im, (".2g", ".2g"), (".2g", ".2g"), joined=" / "))
     header = (
         "image",
         "vs reference: deg / mm",

@@ -33,13 +33,16 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from ..geometry._validate import no_type_check
+
 __all__ = ["batch_mesh", "batch_devices", "run_batched"]
 
 #: The mesh axis that the batch is split over.
 AXIS = "batch"
 
 
-def batch_devices(devices=None) -> tuple[jax.Device, ...]:
+# (jaxlib ships no type stubs: pyright cannot see that `jax.Device` is a class.)
+def batch_devices(devices=None) -> tuple[jax.Device, ...]:  # pyright: ignore[reportInvalidTypeForm]
     """The devices a batch is split over.
 
     **Arguments:**
@@ -126,6 +129,9 @@ def _pad_rows(x: np.ndarray, size: int) -> np.ndarray:
     return np.concatenate([x, np.repeat(x[-1:], size - x.shape[0], axis=0)])
 
 
+# `run_batched` checks its arguments itself (a `ValueError` naming the argument, whatever
+# its type), so no run-time type check comes before its own.
+@no_type_check
 def run_batched(
     fn: Callable,
     shared: Sequence[Any],
@@ -166,10 +172,10 @@ def run_batched(
     if not batched:
         raise ValueError("batched must hold at least one array")
     sizes = {x.shape[0] if x.ndim else None for x in batched}
-    if len(sizes) != 1 or None in sizes:
+    B = sizes.pop() if len(sizes) == 1 else None
+    if B is None:
         shapes = [x.shape for x in batched]
         raise ValueError(f"batched arrays must share their first (batch) axis, got {shapes}")
-    (B,) = sizes
     if B < 1:
         raise ValueError("batched arrays hold no problem (batch size 0)")
     shared = [np.asarray(x) for x in shared]
@@ -192,15 +198,15 @@ def run_batched(
         put = lambda x: _place(x, row_sharding)
     call = _compiled(fn, trailing, keywords, mesh, len(shared), len(batched))
 
-    outputs: list[np.ndarray] | None = None
+    outputs: list[np.ndarray] = []  # filled by the first chunk's results
     treedef = None
 
     def collect(start: int, stop: int, result) -> None:
-        nonlocal outputs, treedef
+        nonlocal treedef
         leaves, tdef = jax.tree.flatten(result)
-        if outputs is None:
+        if treedef is None:
             treedef = tdef
-            outputs = [np.empty((B, *leaf.shape[1:]), leaf.dtype) for leaf in leaves]
+            outputs.extend(np.empty((B, *leaf.shape[1:]), leaf.dtype) for leaf in leaves)
         for out, leaf in zip(outputs, leaves, strict=True):
             out[start:stop] = _fetch(leaf)[: stop - start]
 
@@ -212,5 +218,6 @@ def run_batched(
         if pending is not None:
             collect(*pending)
         pending = (start, stop, result)
-    collect(*pending)
+    if pending is not None:  # always: B >= 1
+        collect(*pending)
     return jax.tree.unflatten(treedef, outputs)

@@ -12,14 +12,22 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 
 from ..geometry._camera import camera_matrix, undistort_pixels
 from ..geometry._rotation import matrix_to_rotvec
-from ..geometry._validate import as_dist_coeffs, as_intrinsics, as_matching, as_points
+from ..geometry._validate import (
+    as_dist_coeffs,
+    as_intrinsics,
+    as_matching,
+    as_points,
+    no_type_check,
+)
 from ..solvers._status import Status
 from ..strategy._options import Options, RobustOptions, resolve
 from ..strategy._robust import robust
@@ -85,15 +93,18 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
     return K, obj, img
 
 
+# The entry points check their arguments themselves (a `ValueError` naming the argument,
+# whatever its type), so no run-time type check comes before theirs.
+@no_type_check
 def solve_pnp(
-    object_points,
-    image_points,
-    camera_matrix,
-    dist_coeffs=None,
+    object_points: npt.ArrayLike,
+    image_points: npt.ArrayLike,
+    camera_matrix: npt.ArrayLike,
+    dist_coeffs: npt.ArrayLike | None = None,
     *,
     options: Options | None = None,
-    **changes,
-):
+    **changes: Any,
+) -> tuple[bool, np.ndarray, np.ndarray]:
     """Drop-in for `cv2.solvePnP`: the pose of the object in the camera frame.
 
     Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
@@ -122,17 +133,18 @@ def solve_pnp(
     return ok, rvec.reshape(3, 1), tvec.reshape(3, 1)
 
 
+@no_type_check
 def solve_pnp_batch(
-    object_points,
-    image_points,
-    camera_matrix,
-    dist_coeffs=None,
+    object_points: npt.ArrayLike,
+    image_points: npt.ArrayLike,
+    camera_matrix: npt.ArrayLike,
+    dist_coeffs: npt.ArrayLike | None = None,
     *,
     options: Options | None = None,
-    chunk_size=None,
+    chunk_size: int | None = None,
     devices=None,
-    **changes,
-):
+    **changes: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`B` independent problems of equal `n` in one compiled call (float64).
 
     **Arguments:** `object_points` `(B, n, 3)` or shared `(n, 3)`; `image_points`
@@ -175,16 +187,17 @@ def _robust_opencv(K, obj, img, threshold, min_inliers, options: RobustOptions):
     return res.status == Status.OK, matrix_to_rotvec(res.pose.R), res.pose.t, res.inliers
 
 
+@no_type_check
 def solve_pnp_ransac(
-    object_points,
-    image_points,
-    camera_matrix,
-    dist_coeffs=None,
+    object_points: npt.ArrayLike,
+    image_points: npt.ArrayLike,
+    camera_matrix: npt.ArrayLike,
+    dist_coeffs: npt.ArrayLike | None = None,
     *,
     reprojection_error: float | None = None,
     options: RobustOptions | None = None,
-    **changes,
-):
+    **changes: Any,
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray | None]:
     """Drop-in for `cv2.solvePnPRansac`: the pose of the object in the camera frame from
     matches of which some may be wrong (jaxpose's robust mode, `jaxpose.robust`, float64).
 

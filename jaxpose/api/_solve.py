@@ -10,15 +10,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._errors import pose_error
 from ..geometry._pose import Observations, Pose, observations, transform
-from ..geometry._validate import as_batched, check_problem
+from ..geometry._validate import as_batched, check_problem, no_type_check
 from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
 from ..solvers._residuals import in_front, pixel_residuals, rms, rounding_level
 from ..solvers._status import Status
+from ..strategy._best import Answer, answer, answer_batch
 from ..strategy._implicit import polish
 from ..strategy._jobs import CHUNK
 from ..strategy._mixed import mixed_from_initial, mixed_from_initial_batch
@@ -52,11 +53,14 @@ class Solution(NamedTuple):
     triplet: Int[Array, ""]
 
 
+# The entry points check their arguments themselves (`check_problem`, `as_batched`: a
+# `ValueError` naming the argument), so no run-time type check comes before theirs.
+@no_type_check
 def solve(
-    camera: Float[Array, "3 4"],
-    model: Float[Array, "n 3"],
-    image: Float[Array, "n 2"],
-    mask: Bool[Array, " n"] | None = None,
+    camera: Real[ArrayLike, "3 4"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+    mask: Bool[ArrayLike, " n"] | None = None,
     *,
     options: Options | None = None,
     **changes,
@@ -97,8 +101,11 @@ def solve(
     check_problem(camera, model, image, mask)
     camera, model, image, finite = _finite_inputs(camera, model, image)
     obs = observations(camera, model, image, mask)
-    rows, initial = _initial(obs, options)
     sobs = jax.lax.stop_gradient(obs)
+    if options.method == "mixed" and options.refine is not None:
+        found = answer(sobs, options)
+        return _not_finite(_finish_answer(obs, found), finite)
+    rows, initial = _initial(obs, options)
     if options.method == "mixed":
         res = mixed_from_initial(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
@@ -107,11 +114,12 @@ def solve(
     return _not_finite(_finish(options.method, obs, rows, *found), finite)
 
 
+@no_type_check
 def solve_many(
-    camera: Float[Array, "3 4"] | Float[Array, "B 3 4"],
-    model: Float[Array, "B n 3"],
-    image: Float[Array, "B n 2"],
-    mask: Bool[Array, "B n"] | None = None,
+    camera: Real[ArrayLike, "3 4"] | Real[ArrayLike, "B 3 4"],
+    model: Real[ArrayLike, "B n 3"],
+    image: Real[ArrayLike, "B n 2"],
+    mask: Bool[ArrayLike, "B n"] | None = None,
     *,
     options: Options | None = None,
     **changes,
@@ -129,7 +137,7 @@ def solve_many(
     """
     options = resolve(options, changes)
     _check_many(camera, model, image, mask)
-    B = model.shape[0]
+    B = jnp.shape(model)[0]
     shared = None if jnp.ndim(camera) == 2 else 0
     camera, model, image, finite = jax.vmap(_finite_inputs, in_axes=(shared, 0, 0))(
         camera, model, image
@@ -139,6 +147,9 @@ def solve_many(
         # triplet gathers, which costs seconds of compile time for nothing.)
         mask = jax.lax.optimization_barrier(jnp.ones(model.shape[:2], dtype=bool))
     obs = jax.vmap(observations)(camera, model, image, mask)
+    if options.method == "mixed" and options.refine is not None:
+        found = answer_batch(jax.lax.stop_gradient(obs), options)
+        return jax.vmap(_not_finite)(jax.vmap(_finish_answer)(obs, found), finite)
     T = triplet_count(model.shape[1], options)
     rows, initial = jax.lax.map(
         lambda o: _initial(o, options), obs, batch_size=max(1, min(B, CHUNK // T))
@@ -292,6 +303,12 @@ def _finish(method, obs: Observations, rows, poses: Pose, error, status) -> Solu
     )
 
 
+def _finish_answer(obs: Observations, found: Answer) -> Solution:
+    """`_finish` for a problem whose answer is already chosen (`jaxpose.strategy.answer`)."""
+    pose = Pose(found.pose.R[None], found.pose.t[None])
+    return _finish("mixed", obs, found.row[None], pose, found.error[None], found.status[None])
+
+
 def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):
     """`solve` over the rows of a chunk: `solve_many` (batch-first, one shared
     Levenberg-Marquardt buffer) when the camera is shared, else `jax.vmap(solve)`."""
@@ -304,11 +321,12 @@ def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, op
     return jax.vmap(one, in_axes=axes)(camera, model, image, mask)
 
 
+@no_type_check
 def solve_batch(
-    camera: Float[np.ndarray, "3 4"] | Float[np.ndarray, "B 3 4"],
-    models: Float[np.ndarray, "B n 3"] | Float[np.ndarray, "n 3"],
-    images: Float[np.ndarray, "B n 2"],
-    masks: Bool[np.ndarray, "B n"] | None = None,
+    camera: Real[ArrayLike, "3 4"] | Real[ArrayLike, "B 3 4"],
+    models: Real[ArrayLike, "B n 3"] | Real[ArrayLike, "n 3"],
+    images: Real[ArrayLike, "B n 2"],
+    masks: Bool[ArrayLike, "B n"] | None = None,
     *,
     options: Options | None = None,
     chunk_size: int | None = None,
@@ -381,7 +399,7 @@ def _argument_order(camera_batched: bool, model_batched: bool) -> tuple[int, int
     shared = [i for i, b in ((0, camera_batched), (1, model_batched)) if not b]
     batched = [i for i, b in ((0, camera_batched), (1, model_batched)) if b] + [2, 3]
     position = {arg: pos for pos, arg in enumerate(shared + batched)}
-    return tuple(position[i] for i in range(4))
+    return position[0], position[1], position[2], position[3]
 
 
 class _Reordered:

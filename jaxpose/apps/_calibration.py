@@ -46,11 +46,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 import optimistix as optx
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._camera import normalize_camera, project, project_with_depth
 from ..geometry._numerics import as_float, by_precision, masked_centroid, safe_sqrt
+from ..geometry._validate import no_type_check
 from ..solvers._nonlinear import _solver
 from ..solvers._status import StatusCode
 from ._robot import Robot, forward_kinematics
@@ -99,13 +101,15 @@ class Calibration(NamedTuple):
     - `status`: `()` int32 `CalibrationStatus`: `OK`, `TOO_FEW_POINTS`, `DEGENERATE_MODEL`
       (collinear points), `COPLANAR_POINTS`, `UNDETERMINED_CAMERA`,
       `NONLINEAR_NOT_CONVERGED` or `NOT_FINITE`.
+
+    JAX arrays from `calibrate`; numpy arrays from `calibrate_with_robot`.
     """
 
-    camera: Float[Array, "3 4"]
-    error: Float[Array, ""]
-    dlt_error: Float[Array, ""]
-    steps: Int[Array, ""]
-    status: Int[Array, ""]
+    camera: Float[Array | np.ndarray, "3 4"]
+    error: Float[Array | np.ndarray, ""]
+    dlt_error: Float[Array | np.ndarray, ""]
+    steps: Int[Array | np.ndarray, ""]
+    status: Int[Array | np.ndarray, ""]
 
 
 class _Linear(NamedTuple):
@@ -234,9 +238,12 @@ def _finish(C, error, dlt_error, steps, status):
 # --------------------------------------------------------------------------- public
 
 
+# `dlt` and `calibrate` check their arguments' shapes themselves (a `ValueError` naming
+# the argument): no run-time type check comes before theirs.
+@no_type_check
 def dlt(
-    points: Float[ArrayLike, "n 3"],
-    pixels: Float[ArrayLike, "n 2"],
+    points: Real[ArrayLike, "n 3"],
+    pixels: Real[ArrayLike, "n 2"],
     mask: Bool[ArrayLike, " n"] | None = None,
     *,
     flat_tol: float = 1e-3,
@@ -261,9 +268,10 @@ def dlt(
     return _finish(C, error, error, 0, lin.status)
 
 
+@no_type_check
 def calibrate(
-    points: Float[ArrayLike, "n 3"],
-    pixels: Float[ArrayLike, "n 2"],
+    points: Real[ArrayLike, "n 3"],
+    pixels: Real[ArrayLike, "n 2"],
     mask: Bool[ArrayLike, " n"] | None = None,
     *,
     flat_tol: float = 1e-3,
@@ -387,8 +395,8 @@ _fk_batch = jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0)))
 
 def simulate_led_pairs(
     robot: Robot,
-    camera: Float[ArrayLike, "3 4"],
-    joints: Float[ArrayLike, "N 4"],
+    camera: npt.ArrayLike,
+    joints: npt.ArrayLike,
     *,
     noise: float = 0.0,
     position_noise: float = 0.0,
@@ -442,8 +450,8 @@ _calibrate_jit = jax.jit(calibrate)
 
 def calibrate_with_robot(
     robot: Robot,
-    camera: Float[ArrayLike, "3 4"],
-    joints: Float[ArrayLike, "N 4"] | None = None,
+    camera: npt.ArrayLike,
+    joints: npt.ArrayLike | None = None,
     *,
     noise: float = 0.5,
     position_noise: float = 0.0,

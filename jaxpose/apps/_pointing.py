@@ -43,12 +43,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._camera import backproject
 from ..geometry._numerics import as_float, masked_centroid, safe_norm, safe_normalize
 from ..geometry._pose import Pose
 from ..geometry._rotation import rotvec_to_matrix
+from ..geometry._validate import no_type_check
 from ..solvers._status import StatusCode
 from ._polyhedron import Polyhedron
 
@@ -79,10 +80,12 @@ class Faces(NamedTuple):
     - `vertices`: `(F, K, 3)` the corners of each face in order (counter-clockwise seen
       from outside), padded to `K` corners by repeating the face's first corner.
     - `mask`: `(F, K)` bool, which corners are real.
+
+    Numpy arrays from `polyhedron_faces`; JAX arrays inside `jit`/`vmap`.
     """
 
-    vertices: Float[Array, "f k 3"]
-    mask: Bool[Array, "f k"]
+    vertices: Float[Array | np.ndarray, "f k 3"]
+    mask: Bool[Array | np.ndarray, "f k"]
 
 
 class Hit(NamedTuple):
@@ -233,9 +236,12 @@ def _finite(*xs):
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in xs]))
 
 
+# `intersect_ray` and `pick` check their arguments' shapes themselves (a `ValueError`
+# naming the argument): no run-time type check comes before theirs.
+@no_type_check
 def intersect_ray(
-    origin: Float[ArrayLike, " 3"],
-    direction: Float[ArrayLike, " 3"],
+    origin: Real[ArrayLike, " 3"],
+    direction: Real[ArrayLike, " 3"],
     faces: Faces,
     pose: Pose,
 ) -> Hit:
@@ -270,7 +276,8 @@ def _intersect(origin, direction, faces, pose) -> Hit:
     # The choice of face is discrete: no gradient flows through it.
     lam, valid = jax.lax.stop_gradient(
         _all_hits(
-            *(jnp.where(finite, x, 0) for x in (origin, direction)),
+            jnp.where(finite, origin, 0),
+            jnp.where(finite, direction, 0),
             jnp.where(finite, corners, 0),
             mask,
         )
@@ -312,13 +319,14 @@ def _point_on_face(params, camera, corners_model, mask, pose):
     return origin + lam * directions[0]
 
 
+@no_type_check
 def pick(
-    camera: Float[ArrayLike, "3 4"],
+    camera: Real[ArrayLike, "3 4"],
     faces: Faces,
     pose: Pose,
-    pixel: Float[ArrayLike, " 2"],
-    pose_covariance: Float[ArrayLike, "6 6"] | None = None,
-    pixel_covariance: Float[ArrayLike, "2 2"] | None = None,
+    pixel: Real[ArrayLike, " 2"],
+    pose_covariance: Real[ArrayLike, "6 6"] | None = None,
+    pixel_covariance: Real[ArrayLike, "2 2"] | None = None,
 ) -> Hit:
     """The 3D point of the object under a clicked pixel, its face and its covariance.
 

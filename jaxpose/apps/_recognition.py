@@ -38,7 +38,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..api._solve import solve
 from ..geometry._pose import Pose, observations, transform
-from ..geometry._validate import as_camera, as_points
+from ..geometry._validate import as_camera, as_points, no_type_check
 from ..solvers._residuals import pixel_residuals
 from ..solvers._status import Status
 from ._polyhedron import Polyhedron
@@ -177,12 +177,16 @@ def verify(
 # --------------------------------------------------------------------------- numpy side
 
 
+# No run-time type check on construction: `verify_hypotheses` validates the fields (a
+# `ValueError` naming the field).
+@no_type_check
 @dataclasses.dataclass(frozen=True)
 class Hypothesis:
     """A recognition hypothesis: a model and matches of its vertices.
 
     **Fields:** `model` (`Polyhedron`); `vertices` `(k,)` indices into `model.vertices`;
-    `image_points` `(k, 2)` the pixels matched to them; `label` (free text).
+    `image_points` `(k, 2)` the pixels matched to them; `label` (free text). Checked by
+    `verify_hypotheses`, not on construction.
     """
 
     model: Polyhedron

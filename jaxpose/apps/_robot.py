@@ -54,9 +54,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+import numpy.typing as npt
+from jaxtyping import Array, ArrayLike, Float, Int, Real
 
 from ..geometry._numerics import float_dtype, safe_sqrt
+from ..geometry._validate import no_type_check
 from ..solvers._status import StatusCode
 
 __all__ = [
@@ -97,14 +99,16 @@ class Robot(NamedTuple):
     - `height`: `()` wrist height `h` above the base plane `z = 0` (mm).
     - `shank`: `()` shank length `L`, wrist to LED tip (mm).
     - `lower`, `upper`: `(4,)` joint limits `(x, y, pan, tilt)` (mm, mm, rad, rad).
+
+    Numpy arrays from `default_robot`; JAX arrays inside `jit`/`vmap`.
     """
 
-    base_R: Float[Array, "3 3"]
-    base_t: Float[Array, " 3"]
-    height: Float[Array, ""]
-    shank: Float[Array, ""]
-    lower: Float[Array, " 4"]
-    upper: Float[Array, " 4"]
+    base_R: Float[Array | np.ndarray, "3 3"]
+    base_t: Float[Array | np.ndarray, " 3"]
+    height: Float[Array | np.ndarray, ""]
+    shank: Float[Array | np.ndarray, ""]
+    lower: Float[Array | np.ndarray, " 4"]
+    upper: Float[Array | np.ndarray, " 4"]
 
 
 class RobotState(NamedTuple):
@@ -193,7 +197,11 @@ def _frame(R, t):
     return jnp.concatenate([jnp.concatenate([R, t[:, None]], axis=1), bottom], axis=0)
 
 
-def forward_kinematics(robot: Robot, joints: Float[ArrayLike, " 4"]) -> RobotState:
+# `forward_kinematics`, `inverse_kinematics` and `joint_command` check their arguments
+# themselves (a `ValueError` naming the argument): no run-time type check comes before
+# theirs.
+@no_type_check
+def forward_kinematics(robot: Robot, joints: Real[ArrayLike, " 4"]) -> RobotState:
     """Where the LED tip is for a joint vector (see the module docstring).
 
     $$ \\text{tip} = R_b \\left( (x, y, h) + L \\, s(\\psi, \\theta) \\right) + t_b $$
@@ -216,7 +224,7 @@ def forward_kinematics(robot: Robot, joints: Float[ArrayLike, " 4"]) -> RobotSta
     wrist_b = jnp.stack([x, y, robot.height])
     shank_b = tool[:, 2]
     tip_b = wrist_b + robot.shank * shank_b
-    Rb, tb = robot.base_R, robot.base_t
+    Rb, tb = jnp.asarray(robot.base_R), jnp.asarray(robot.base_t)
     frames = jnp.stack(
         [
             _frame(Rb, tb),
@@ -235,10 +243,11 @@ def _wrap(a):
     return jnp.pi - jnp.mod(jnp.pi - a, 2 * jnp.pi)
 
 
+@no_type_check
 def inverse_kinematics(
     robot: Robot,
-    target: Float[ArrayLike, " 3"],
-    approach: Float[ArrayLike, " 3"] | None = None,
+    target: Real[ArrayLike, " 3"],
+    approach: Real[ArrayLike, " 3"] | None = None,
     *,
     steps: int = 72,
 ) -> JointCommand:
@@ -334,10 +343,11 @@ def inverse_kinematics(
     return JointCommand(joints, jax.lax.stop_gradient(angle), error, status)
 
 
+@no_type_check
 def joint_command(
     robot: Robot,
-    target: Float[ArrayLike, " 3"],
-    approach: Float[ArrayLike, " 3"] | None = None,
+    target: npt.ArrayLike,
+    approach: npt.ArrayLike | None = None,
 ) -> np.ndarray:
     """Numpy boundary of `inverse_kinematics`: the joints `(4,)`, or a `ValueError`.
 

@@ -26,6 +26,20 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _add_noise_options(parser: argparse.ArgumentParser) -> None:
+    """`--seed` and `--noise`: the image noise of the embedded bench (`--noise` left
+    `None` here stands for the bench's own sigma, filled in by `main`)."""
+    parser.add_argument("--seed", type=int, default=0, help="image-noise seed (default 0)")
+    parser.add_argument(
+        "--noise", type=float, default=None, help="pixel noise sigma (default: the bench's)"
+    )
+
+
+def _add_threshold_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """`--threshold`: an acceptance threshold in px, `None` (adaptive) by default."""
+    parser.add_argument("--threshold", type=float, default=None, help=help_text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The `jaxpose` argument parser, with its subcommands."""
     parser = _Parser(
@@ -36,16 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     p = sub.add_parser("reproduce", help="run the paper's experiment on the embedded bench")
-    p.add_argument("--seed", type=int, default=0, help="image-noise seed (default 0)")
-    p.add_argument(
-        "--noise", type=float, default=None, help="pixel noise sigma (default: the bench's)"
-    )
-    p.add_argument(
-        "--threshold",
-        type=float,
-        default=None,
-        help="mixed acceptance threshold in px (default: adaptive)",
-    )
+    _add_noise_options(p)
+    _add_threshold_option(p, "mixed acceptance threshold in px (default: adaptive)")
     p.add_argument("--out", default="results", help="output folder (default ./results)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--float32", action="store_true", help="compute in float32")
@@ -76,12 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="mixed",
         help="pose-recovery method (default mixed)",
     )
-    s.add_argument(
-        "--threshold",
-        type=float,
-        default=None,
-        help="acceptance threshold in px (default: adaptive)",
-    )
+    _add_threshold_option(s, "acceptance threshold in px (default: adaptive)")
     s.add_argument("--out", metavar="PATH", help="write the pose as JSON to PATH")
     s.add_argument("--photo", metavar="FILE", help="the camera image, shown in the recording")
     s.add_argument(
@@ -104,10 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument(
         "--pixel", type=float, nargs=2, required=True, metavar=("U", "V"), help="the click"
     )
-    pt.add_argument("--seed", type=int, default=0, help="image-noise seed (default 0)")
-    pt.add_argument(
-        "--noise", type=float, default=None, help="pixel noise sigma (default: the bench's)"
-    )
+    _add_noise_options(pt)
     pt.add_argument(
         "--click-sigma",
         type=float,

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -103,7 +104,7 @@ class Problem:
     sources: tuple[str, ...] = ()
 
 
-def _fail(path: Path, message: str):
+def _fail(path: Path, message: str) -> NoReturn:
     """Raise `ProblemError` with `message` about the file `path`."""
     raise ProblemError(f"{path}: {message}")
 

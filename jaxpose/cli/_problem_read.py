@@ -430,7 +430,7 @@ def read_problem(
         if int(mask.sum()) < 3:
             _fail(where("mask"), f"mask selects {int(mask.sum())} matches; at least 3 are needed")
     image_points = observed
-    if dist is not None:
+    if dist is not None and K is not None:  # a distortion comes with its K
         from ..geometry._camera import undistort_pixels
 
         image_points = undistort_pixels(observed.astype(np.float64), K, dist)

@@ -24,7 +24,7 @@ def bench_problem(bench) -> Problem:
         K=np.asarray(bench.K, np.float64),
         R_wc=np.asarray(bench.R_wc, np.float64),
         t_wc=np.asarray(bench.t_wc, np.float64),
-        image_size=tuple(int(v) for v in bench.image_size),
+        image_size=(int(bench.image_size[0]), int(bench.image_size[1])),
         polyhedron=bench.model,
         true_pose=(np.asarray(bench.R, np.float64), np.asarray(bench.t, np.float64)),
     )
@@ -47,12 +47,20 @@ def write_problem(path, problem: Problem) -> Path:
     return path
 
 
+def _camera_motion(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """`(R_wc, t_wc)` of a problem whose camera was given as `K` (they come with it)."""
+    if problem.R_wc is None or problem.t_wc is None:
+        raise ValueError("a camera given as K needs its R_wc and t_wc")
+    return problem.R_wc, problem.t_wc
+
+
 def _write_json(path: Path, problem: Problem) -> None:
     if problem.K is not None:
+        R_wc, t_wc = _camera_motion(problem)
         cam: dict = {"K": problem.K.tolist()}
         if problem.dist is not None:
             cam["dist"] = problem.dist.tolist()
-        cam |= {"R": problem.R_wc.tolist(), "t": problem.t_wc.tolist()}
+        cam |= {"R": R_wc.tolist(), "t": t_wc.tolist()}
     else:
         cam = {"C": problem.camera.tolist()}
     data: dict = {"camera": cam}
@@ -91,11 +99,12 @@ def _write_yaml(path: Path, problem: Problem) -> None:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     try:
         if problem.K is not None:
+            R_wc, t_wc = _camera_motion(problem)
             fs.write("camera_matrix", problem.K)
             if problem.dist is not None:
                 fs.write("distortion_coefficients", problem.dist.reshape(-1, 1))
-            fs.write("camera_rotation", problem.R_wc)
-            fs.write("camera_translation", problem.t_wc.reshape(3, 1))
+            fs.write("camera_rotation", R_wc)
+            fs.write("camera_translation", t_wc.reshape(3, 1))
         else:
             fs.write("projection_matrix", problem.camera)
         if problem.image_size is not None:

@@ -22,6 +22,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from ._numerics import adjugate3, as_float, det3, safe_norm, safe_normalize
 from ._validate import as_dist_coeffs
@@ -42,7 +44,7 @@ __all__ = [
 # --------------------------------------------------------------------------- helpers
 
 
-def _sign(x):
+def _sign(x: Array) -> Array:
     """Sign that is never zero: +1 for `x >= 0`, -1 otherwise (no gradient)."""
     return jnp.where(x < 0, -1, 1).astype(x.dtype)
 
@@ -50,7 +52,11 @@ def _sign(x):
 # --------------------------------------------------------------------------- building
 
 
-def camera_matrix(K, R=None, t=None):
+def camera_matrix(
+    K: Real[ArrayLike, "3 3"],
+    R: Real[ArrayLike, "3 3"] | None = None,
+    t: Real[ArrayLike, " 3"] | None = None,
+) -> Float[Array, "3 4"]:
     """Projection matrix `C = K [R | t]` from intrinsics and a world-to-camera motion.
 
     $$ C = K \\, [R \\mid t], \\qquad x_{cam} = R \\, p + t $$
@@ -72,7 +78,7 @@ def camera_matrix(K, R=None, t=None):
     return K @ jnp.concatenate([R, t.reshape(3, 1)], axis=1)
 
 
-def camera_centre(C):
+def camera_centre(C: Real[ArrayLike, "3 4"]) -> Float[Array, " 3"]:
     """Optical centre of the camera in the world frame: the null vector of `C`.
 
     $$ C \\, [o\\ 1]^T = 0 \\iff o = -M^{-1} c_4 $$
@@ -96,7 +102,7 @@ def camera_centre(C):
     return jnp.where(ok, centre, 0)
 
 
-def normalize_camera(C):
+def normalize_camera(C: Real[ArrayLike, "3 4"]) -> Float[Array, "3 4"]:
     """Rescale `C` so that its third row has `||m3|| = 1` and `det(M) > 0`.
 
     $$ C' = \\frac{\\operatorname{sign}(\\det M)}{\\|m_3\\|} \\, C $$
@@ -120,7 +126,9 @@ def normalize_camera(C):
     return C * (_sign(det) / jnp.where(n3 > 0, n3, 1))
 
 
-def decompose_camera(C):
+def decompose_camera(
+    C: Real[ArrayLike, "3 4"],
+) -> tuple[Float[Array, "3 3"], Float[Array, "3 3"], Float[Array, " 3"], Float[Array, " 3"]]:
     """Split a camera into intrinsics, world-to-camera rotation and translation, centre.
 
     With `s = sign(det M)`, an RQ decomposition `s M = K~ R` (`K~` upper triangular with
@@ -170,12 +178,12 @@ def decompose_camera(C):
 # --------------------------------------------------------------------------- projecting
 
 
-def _homogeneous(C, points):
+def _homogeneous(C: Float[Array, "3 4"], points: Float[Array, "n 3"]) -> Float[Array, "n 3"]:
     """`C [p 1]^T` for every point, shape (n, 3)."""
     return points @ C[:, :3].T + C[:, 3][None, :]
 
 
-def _divide_w(h):
+def _divide_w(h: Float[Array, "n 3"]) -> Float[Array, "n 2"]:
     """`(x / w, y / w)` for homogeneous rows `h = (x, y, w)` (n, 3), finite everywhere.
 
     A row whose `|w|` is below `floor = eps * max(|x|, |y|) + sqrt(tiny)` (on the
@@ -195,7 +203,7 @@ def _divide_w(h):
     return jnp.where(bad, placeholder, exact)
 
 
-def project(C, points):
+def project(C: Real[ArrayLike, "3 4"], points: Real[ArrayLike, "n 3"]) -> Float[Array, "n 2"]:
     """Pixels of world points (SPEC Eq. 4).
 
     $$ [x\\ y\\ w]^T = C \\, [p\\ 1]^T, \\qquad (u, v) = (x / w,\\ y / w) $$
@@ -220,7 +228,9 @@ def project(C, points):
     return _divide_w(_homogeneous(C, points))
 
 
-def project_with_depth(C, points):
+def project_with_depth(
+    C: Real[ArrayLike, "3 4"], points: Real[ArrayLike, "n 3"]
+) -> tuple[Float[Array, "n 2"], Float[Array, " n"]]:
     """Pixels and signed depths of world points.
 
     $$ \\operatorname{depth}(p) = \\operatorname{sign}(\\det M) \\,
@@ -252,7 +262,9 @@ def project_with_depth(C, points):
 # --------------------------------------------------------------------------- visual rays
 
 
-def ray_planes(C, uv):
+def ray_planes(
+    C: Real[ArrayLike, "3 4"], uv: Real[ArrayLike, "n 2"]
+) -> tuple[Float[Array, "n 3"], Float[Array, " n"], Float[Array, "n 3"], Float[Array, " n"]]:
     """The two planes whose intersection is the visual ray of each pixel (SPEC Eq. 5).
 
     $$ n_1 = c_1[{:}3] - u \\, c_3[{:}3], \\quad a_1 = c_1[3] - u \\, c_3[3], $$
@@ -278,7 +290,9 @@ def ray_planes(C, uv):
     return p1[:, :3], p1[:, 3], p2[:, :3], p2[:, 3]
 
 
-def backproject(C, uv):
+def backproject(
+    C: Real[ArrayLike, "3 4"], uv: Real[ArrayLike, "n 2"]
+) -> tuple[Float[Array, " 3"], Float[Array, "n 3"]]:
     """Camera centre and unit world-frame directions of the visual rays of pixels.
 
     $$ d \\propto \\operatorname{sign}(\\det M) \\, M^{-1} [u\\ v\\ 1]^T
@@ -308,7 +322,13 @@ def backproject(C, uv):
 # --------------------------------------------------------------------------- distortion
 
 
-def undistort_pixels(uv, K, dist_coeffs, *, criteria=None):
+def undistort_pixels(
+    uv: npt.ArrayLike,
+    K: npt.ArrayLike,
+    dist_coeffs: npt.ArrayLike | None,
+    *,
+    criteria: tuple[int, int, float] | None = None,
+) -> np.ndarray | npt.ArrayLike:
     """Remove lens distortion from pixels, staying in pixel units (numpy, not traced).
 
     Uses `cv2.undistortPoints(uv, K, dist_coeffs, P=K)`: the ideal pinhole pixels that
@@ -351,7 +371,7 @@ def undistort_pixels(uv, K, dist_coeffs, *, criteria=None):
 # --------------------------------------------------------------------------- numpy
 
 
-def project_numpy(C, points) -> tuple[np.ndarray, np.ndarray]:
+def project_numpy(C: npt.ArrayLike, points: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Pixels and depths of world points in numpy float64, for drawing and data generation
     (no JAX, no gradient).
 
@@ -364,10 +384,10 @@ def project_numpy(C, points) -> tuple[np.ndarray, np.ndarray]:
 
     **Returns:** `(pixels (n, 2), depth (n,))`.
     """
-    C = np.asarray(C, dtype=np.float64)
-    M = C[:, :3]
-    C = C * ((np.sign(np.linalg.det(M)) or 1.0) / np.linalg.norm(M[2]))
-    h = np.asarray(points, dtype=np.float64) @ C[:, :3].T + C[:, 3]
+    C0 = np.asarray(C, dtype=np.float64)
+    M = C0[:, :3]
+    Cn: np.ndarray = C0 * ((np.sign(np.linalg.det(M)) or 1.0) / np.linalg.norm(M[2]))
+    h = np.asarray(points, dtype=np.float64) @ Cn[:, :3].T + Cn[:, 3]
     depth = h[:, 2]
     safe = np.where(np.abs(depth) > 1e-300, depth, np.copysign(1e-300, depth))
     return h[:, :2] / safe[:, None], depth

@@ -14,6 +14,7 @@ gives 0.
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Real
 
 from ._camera import backproject, project
 from ._numerics import as_float, masked_mean, safe_norm, safe_sqrt
@@ -27,7 +28,13 @@ __all__ = [
 ]
 
 
-def reprojection_residuals(C, R, t, model, image):
+def reprojection_residuals(
+    C: Real[ArrayLike, "3 4"],
+    R: Real[ArrayLike, "3 3"],
+    t: Real[ArrayLike, " 3"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+) -> Float[Array, "n 2"]:
     """Pixel residuals of a pose: projection of each posed model point minus its match.
 
     $$ r_i = \\pi(C, R m_i + t) - (u_i, v_i) $$
@@ -49,7 +56,14 @@ def reprojection_residuals(C, R, t, model, image):
     return project(C, transform(Pose(R, t.reshape(3)), model)) - image
 
 
-def reprojection_rms(C, R, t, model, image, mask=None):
+def reprojection_rms(
+    C: Real[ArrayLike, "3 4"],
+    R: Real[ArrayLike, "3 3"],
+    t: Real[ArrayLike, " 3"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+    mask: Bool[ArrayLike, " n"] | None = None,
+) -> Float[Array, ""]:
     """Root-mean-square reprojection error of a pose (SPEC Eq. 8), in pixels.
 
     $$ e = \\sqrt{\\frac{1}{N} \\sum_i (\\hat u_i - u_i)^2 + (\\hat v_i - v_i)^2} $$
@@ -73,7 +87,13 @@ def reprojection_rms(C, R, t, model, image, mask=None):
     return safe_sqrt(masked_mean(jnp.sum(r * r, axis=1), mask))
 
 
-def pose_error_per_point(C, R, t, model, image):
+def pose_error_per_point(
+    C: Real[ArrayLike, "3 4"],
+    R: Real[ArrayLike, "3 3"],
+    t: Real[ArrayLike, " 3"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+) -> Float[Array, " n"]:
     """The paper's per-vertex pose error (SPEC Section 4), in model units.
 
     $$ E_i = d_i \\sin a_i $$
@@ -114,7 +134,14 @@ def pose_error_per_point(C, R, t, model, image):
     return jnp.where(ahead, sideways, safe_norm(v, axis=1))
 
 
-def pose_error(C, R, t, model, image, mask=None):
+def pose_error(
+    C: Real[ArrayLike, "3 4"],
+    R: Real[ArrayLike, "3 3"],
+    t: Real[ArrayLike, " 3"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+    mask: Bool[ArrayLike, " n"] | None = None,
+) -> Float[Array, ""]:
     """Mean of the paper's per-vertex pose error (SPEC Section 4), in model units.
 
     $$ E = \\frac{1}{N} \\sum_i d_i \\sin a_i $$

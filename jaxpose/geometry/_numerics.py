@@ -18,10 +18,10 @@ composes with `jit`, `vmap` and `grad`.
 
 from __future__ import annotations
 
-from typing import TypeVar
+from typing import TypeVar, overload
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Real
 
 __all__ = [
     "adjugate3",
@@ -53,7 +53,15 @@ def float_dtype(*xs: ArrayLike) -> jnp.dtype:
     return dtype
 
 
-def as_float(*xs: ArrayLike):
+@overload
+def as_float(x: ArrayLike, /) -> Array: ...
+
+
+@overload
+def as_float(x: ArrayLike, y: ArrayLike, /, *xs: ArrayLike) -> tuple[Array, ...]: ...
+
+
+def as_float(*xs: ArrayLike):  # the overloads above give its return type
     """`xs` as JAX arrays of their common inexact dtype (see `float_dtype`).
 
     **Returns:** one array for one argument, a tuple of arrays for several.
@@ -77,19 +85,20 @@ def by_precision(dtype, *, f64: T, f32: T) -> T:
 # --------------------------------------------------------------------------- safe forms
 
 
-def safe_sqrt(x: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
+def safe_sqrt(x: Real[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
     """`sqrt(x)` for `x > 0`, else `0`; the derivative is `0` (not `inf`) at `x <= 0`."""
+    x = jnp.asarray(x)
     ok = x > 0
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
 
 
-def safe_div(num: Float[ArrayLike, "*shape"], den: Float[ArrayLike, "*shape"]) -> Array:
-    """`num / den` where `den != 0`, else `0` (value and derivative)."""
+def safe_div(num: Real[ArrayLike, "*#shape"], den: Real[ArrayLike, "*#shape"]) -> Array:
+    """`num / den` where `den != 0`, else `0` (value and derivative); broadcasting."""
     ok = den != 0
     return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
 
 
-def safe_atan2(y: Float[ArrayLike, "*shape"], x: Float[ArrayLike, "*shape"]) -> Array:
+def safe_atan2(y: Real[ArrayLike, "*#shape"], x: Real[ArrayLike, "*#shape"]) -> Array:
     """`atan2(y, x)`, but `0` with derivative `0` (not `NaN`) where `x^2 + y^2` is `0`."""
     degenerate = (x * x + y * y) == 0
     return jnp.arctan2(jnp.where(degenerate, 0.0, y), jnp.where(degenerate, 1.0, x))
@@ -163,7 +172,8 @@ def adjugate3(M: Float[ArrayLike, "3 3"]) -> Float[Array, "3 3"]:
 
 
 def masked_mean(
-    values: Float[ArrayLike, "n ..."], mask: Bool[ArrayLike, " n"] | None = None
+    values: Float[ArrayLike, "n ..."],
+    mask: Bool[ArrayLike, " n"] | Real[ArrayLike, " n"] | None = None,
 ) -> Float[Array, "..."]:
     """Mean of `values` over their first axis, counting only the rows selected by `mask`.
 
@@ -188,7 +198,8 @@ def masked_mean(
 
 
 def masked_centroid(
-    points: Float[ArrayLike, "n d"], mask: Bool[ArrayLike, " n"] | None = None
+    points: Float[ArrayLike, "n d"],
+    mask: Bool[ArrayLike, " n"] | Real[ArrayLike, " n"] | None = None,
 ) -> Float[Array, " d"]:
     """Centroid of the points selected by `mask` (`(n,)` bool or `0`/`1` weights; `None`:
     all); the origin when none is selected. `masked_mean` of points `(n, d)`."""

@@ -31,17 +31,18 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from ._numerics import as_float, safe_norm, safe_normalize, safe_sqrt
 
-# Shape-annotated aliases (one rotation, no batch axis).
+# Shape-annotated aliases (one rotation, no batch axis). Inputs may be integer (they are
+# promoted to the default float dtype); outputs are floating.
 Vector3 = Float[Array, "3"]
-Vector3Like = Float[ArrayLike, "3"]
+Vector3Like = Real[ArrayLike, "3"]
 QuaternionArray = Float[Array, "4"]
-QuaternionLike = Float[ArrayLike, "4"]
+QuaternionLike = Real[ArrayLike, "4"]
 Matrix3 = Float[Array, "3 3"]
-Matrix3Like = Float[ArrayLike, "3 3"]
+Matrix3Like = Real[ArrayLike, "3 3"]
 Scalar = Float[Array, ""]
 
 __all__ = [

@@ -4,11 +4,21 @@ Code under `jit` never raises on data (it reports status codes); the public entr
 call these helpers first, so that a wrong shape, a NaN or a singular camera is reported
 at once as a `ValueError` whose message names the offending argument.
 
-Every helper returns a numpy array in a canonical layout: floating point (float32 stays
-float32, float64 stays float64, other real types become float64).
+Every helper takes any value (`object`: arrays, nested lists, tracers, `None`; checking
+it is the helper's job) and returns a numpy array in a canonical layout: floating point
+(float32 stays float32, float64 stays float64, other real types become float64).
+
+An entry point that checks its arguments itself, whatever their type, is marked
+`@no_type_check` (imported from here): run-time type checkers (the test suite runs
+jaxtyping's with beartype on the whole package) then leave its arguments to it, so that a
+bad one raises the `ValueError` naming it, not a `TypeError`. Static checkers still read
+its annotations, which `typing.no_type_check` itself would hide from them.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -22,6 +32,18 @@ __all__ = [
     "check_problem",
 ]
 
+if TYPE_CHECKING:
+    _F = TypeVar("_F", bound=Callable[..., Any])
+
+    def no_type_check(arg: _F) -> _F:
+        """For static checkers: the annotations of `arg` stand (see the module docstring)."""
+        return arg
+
+else:
+    # At run time `typing.no_type_check` itself: jaxtyping's import hook skips a function
+    # or class decorated with it (by name), and beartype and typeguard skip it too.
+    from typing import no_type_check as no_type_check
+
 #: Distortion vector lengths OpenCV accepts.
 DIST_COEFF_SIZES = (4, 5, 8, 12, 14)
 
@@ -30,7 +52,7 @@ DIST_COEFF_SIZES = (4, 5, 8, 12, 14)
 SINGULAR_RTOL = 1e-12
 
 
-def _as_real_array(x, name):
+def _as_real_array(x: object, name: str) -> np.ndarray:
     """`x` as a numpy array of a real floating dtype, or ValueError naming `name`."""
     if x is None:
         raise ValueError(f"{name} is required, got None")
@@ -47,12 +69,12 @@ def _as_real_array(x, name):
     return arr
 
 
-def _check_finite(arr, name):
+def _check_finite(arr: np.ndarray, name: str) -> None:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or infinite values")
 
 
-def as_points(x, name, dim, *, min_count=1):
+def as_points(x: object, name: str, dim: int, *, min_count: int = 1) -> np.ndarray:
     """Validate an array of `dim`-dimensional points.
 
     **Arguments:**
@@ -85,14 +107,14 @@ def as_points(x, name, dim, *, min_count=1):
     return arr
 
 
-def _check_nonsingular(M, name, what):
+def _check_nonsingular(M: np.ndarray, name: str, what: str) -> None:
     s = np.linalg.svd(np.asarray(M, dtype=np.float64), compute_uv=False)
     if not s[0] > 0 or s[-1] <= SINGULAR_RTOL * s[0]:
         cond = np.inf if s[-1] == 0 else s[0] / s[-1]
         raise ValueError(f"{name}: {what} is singular (condition number {cond:.3g})")
 
 
-def as_camera(C, name="camera"):
+def as_camera(C: object, name: str = "camera") -> np.ndarray:
     """Validate a 3x4 projection matrix `C = [M | c4]`.
 
     **Arguments:**
@@ -117,7 +139,7 @@ def as_camera(C, name="camera"):
     return arr
 
 
-def as_intrinsics(K, name="camera_matrix"):
+def as_intrinsics(K: object, name: str = "camera_matrix") -> np.ndarray:
     """Validate a pinhole intrinsic matrix `K`.
 
     Accepted: shape (3, 3), finite, `K[2,2] != 0`, lower triangle zero (up to
@@ -158,7 +180,7 @@ def as_intrinsics(K, name="camera_matrix"):
     return arr
 
 
-def as_dist_coeffs(d, name="dist_coeffs"):
+def as_dist_coeffs(d: object, name: str = "dist_coeffs") -> np.ndarray | None:
     """Validate OpenCV distortion coefficients.
 
     **Arguments:**
@@ -193,7 +215,9 @@ def as_dist_coeffs(d, name="dist_coeffs"):
     return arr
 
 
-def as_matching(object_points, image_points, *, min_count=1):
+def as_matching(
+    object_points: object, image_points: object, *, min_count: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
     """Validate matched model points (n, 3) and image points (n, 2).
 
     **Arguments:**
@@ -221,7 +245,16 @@ def as_matching(object_points, image_points, *, min_count=1):
     return obj, img
 
 
-def as_batched(x, name, tail, *, batch_size=None, count=None, shared=True, min_count=3):
+def as_batched(
+    x: object,
+    name: str,
+    tail: int | tuple[int, ...],
+    *,
+    batch_size: int | None = None,
+    count: int | None = None,
+    shared: bool = True,
+    min_count: int = 3,
+) -> np.ndarray:
     """Validate a batch of arrays `(B, *tail)`, or one array `tail` shared by the batch.
 
     Values are not checked for finiteness: in a batch, a problem with NaN or inf is
@@ -273,12 +306,13 @@ def as_batched(x, name, tail, *, batch_size=None, count=None, shared=True, min_c
     return arr
 
 
-def _shape_dtype(x, name):
+def _shape_dtype(x: object, name: str) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype of an array, a tracer or an array-like (values are not read)."""
     if x is None:
         raise ValueError(f"{name} is required, got None")
-    if hasattr(x, "shape") and hasattr(x, "dtype"):
-        return tuple(x.shape), np.dtype(x.dtype)
+    shape, dtype = getattr(x, "shape", None), getattr(x, "dtype", None)
+    if shape is not None and dtype is not None:
+        return tuple(shape), np.dtype(dtype)
     try:
         arr = np.asarray(x)
     except Exception as exc:  # ragged lists and the like
@@ -286,7 +320,9 @@ def _shape_dtype(x, name):
     return arr.shape, arr.dtype
 
 
-def check_problem(camera, model, image, mask=None, *, min_count=3):
+def check_problem(
+    camera: object, model: object, image: object, mask: object = None, *, min_count: int = 3
+) -> None:
     """Check the shapes and dtypes of one problem of the JAX-native API.
 
     Only `.shape` and `.dtype` are read, never values, so this runs under `jit`, `vmap`
@@ -306,7 +342,7 @@ def check_problem(camera, model, image, mask=None, *, min_count=3):
     `ValueError` naming the argument.
     """
 
-    def real(name, x):
+    def real(name: str, x: object) -> tuple[int, ...]:
         shape, dtype = _shape_dtype(x, name)
         if dtype == np.bool_ or not (
             np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)

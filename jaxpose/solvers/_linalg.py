@@ -20,9 +20,14 @@ import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Float
 
+from ..geometry._validate import no_type_check
+
 __all__ = ["NormalCholesky", "cholesky_solve", "symmetric_pinv"]
 
 
+# `cholesky_solve` checks its arguments' shapes itself (a `ValueError` naming it): no
+# run-time type check comes before its own.
+@no_type_check
 def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
     """Solve `A x = b` for a small symmetric positive semi-definite `A` (Cholesky,
     unrolled over the static size `n`).

@@ -40,7 +40,7 @@ from ..geometry._numerics import by_precision, masked_centroid
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import rotvec_to_matrix
 from ._linalg import cholesky_solve
-from ._residuals import depths, in_front, pixel_residuals, plane_residuals, rms, safe_inverse_depth
+from ._residuals import depths, plane_residuals, safe_inverse_depth, settle
 from ._status import Status
 
 __all__ = ["LinearResult", "default_tol", "linear", "linear_step"]
@@ -138,23 +138,6 @@ def linear(
     init = Pose(jnp.asarray(init.R, dtype), jnp.asarray(init.t, dtype))
     start = (init, jnp.asarray(jnp.finfo(dtype).max, dtype))
     pose, step = jax.lax.fori_loop(0, iterations, body, start)
-    world = transform(pose, obs.model)
-    error = rms(pixel_residuals(world, obs), obs.mask)
-    finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t))
-    front = in_front(world, obs)
-    enough = jnp.sum(obs.mask) >= 3
-    status = jnp.select(
-        [~enough, ~finite, ~front, ~(step < tol)],
-        [
-            Status.TOO_FEW_POINTS,
-            Status.NOT_FINITE,
-            Status.BEHIND_CAMERA,
-            Status.LINEAR_NOT_CONVERGED,
-        ],
-        Status.OK,
-    ).astype(jnp.int32)
-    placeholder = Pose.identity(dtype)
-    pose = jax.tree.map(lambda a, b: jnp.where(finite, a, b), pose, placeholder)
-    error = jnp.where(finite, error, jnp.finfo(dtype).max)
+    pose, error, status = settle(obs, pose, step < tol, Status.LINEAR_NOT_CONVERGED)
     step = jnp.where(jnp.isfinite(step), step, jnp.finfo(dtype).max)
     return LinearResult(pose, error, step, status)

@@ -36,7 +36,7 @@ from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import quaternion_vector_to_matrix
 from ._chart import chart_at, chart_points, chart_pose
 from ._linalg import NormalCholesky
-from ._residuals import in_front, pixel_residuals, rms, rounding_level
+from ._residuals import pixel_residuals, pose_error, rounding_level, settle
 from ._status import Status
 
 __all__ = ["NonlinearResult", "nonlinear"]
@@ -159,10 +159,6 @@ def nonlinear(
     )
     y = sol.value
     pose = chart_pose(y, chart, quaternion_vector_to_matrix)
-    world = transform(pose, obs.model)
-    error = rms(pixel_residuals(world, obs), obs.mask)
-    finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t))
-    front = in_front(world, obs)
     # Converged means stationary: the residual is orthogonal to every Jacobian column
     # (MINPACK's gtol test). optimistix tests termination only on accepted steps, and at
     # machine precision its trust region may reject every step and run out of steps
@@ -172,23 +168,11 @@ def nonlinear(
     cosine = jnp.abs(J.T @ r) / (jnp.linalg.norm(J, axis=0) * jnp.linalg.norm(r) + tiny)
     # A residual at rounding level (exact data) is a global optimum, where the cosine is
     # rounding noise: stationary too.
-    exact = error <= rounding_level(obs)
+    exact = pose_error(pose, obs) <= rounding_level(obs)
     stationary = (jnp.max(cosine) < gtol) | exact
     stopped = (sol.result == optx.RESULTS.successful) | (
         sol.result == optx.RESULTS.nonlinear_max_steps_reached
     )
     converged = stopped & stationary
-    status = jnp.select(
-        [jnp.sum(obs.mask) < 3, ~finite, ~front, ~converged],
-        [
-            Status.TOO_FEW_POINTS,
-            Status.NOT_FINITE,
-            Status.BEHIND_CAMERA,
-            Status.NONLINEAR_NOT_CONVERGED,
-        ],
-        Status.OK,
-    ).astype(jnp.int32)
-    placeholder = Pose.identity(dtype)
-    pose = jax.tree.map(lambda a, b: jnp.where(finite, a, b), pose, placeholder)
-    error = jnp.where(finite, error, jnp.finfo(dtype).max)
+    pose, error, status = settle(obs, pose, converged, Status.NONLINEAR_NOT_CONVERGED)
     return NonlinearResult(pose, error, sol.stats["num_steps"], status)

@@ -66,7 +66,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._camera import backproject, normalize_camera
 from ..geometry._numerics import adjugate3, by_precision, det3, safe_div, safe_sqrt
@@ -354,9 +354,9 @@ def _triangle_area(a, b, c):
 
 
 def three_point(
-    camera: Float[Array, "3 4"],
-    model: Float[Array, "3 3"],
-    image: Float[Array, "3 2"],
+    camera: Real[ArrayLike, "3 4"],
+    model: Real[ArrayLike, "3 3"],
+    image: Real[ArrayLike, "3 2"],
     *,
     min_area: float = 40.0,
     collinear_tol: float = 5e-3,

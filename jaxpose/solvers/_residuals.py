@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
-from ..geometry._pose import Observations
+from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import quaternion_vector_to_matrix, rotvec_to_matrix
+from ._status import Status
 
 __all__ = [
     "pixel_residuals",
@@ -86,15 +87,43 @@ def rms(residuals: Float[Array, "n 2"], mask) -> Float[Array, ""]:
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, ss, 1)), jnp.where(ss == 0, 0, ss))
 
 
+def pose_error(pose: Pose, obs: Observations) -> Float[Array, ""]:
+    """Eq. 8 error (RMS px) of one pose over the problem's masked matches."""
+    return rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
+
+
+def settle(
+    obs: Observations, pose: Pose, converged: Bool[Array, ""], failure: int
+) -> tuple[Pose, Float[Array, ""], Int[Array, ""]]:
+    """A solver's final pose, its Eq. 8 error and its status.
+
+    The status is the first that applies of `TOO_FEW_POINTS` (under three matches),
+    `NOT_FINITE`, `BEHIND_CAMERA`, `failure` (where `converged` is false) and `OK`. A
+    non-finite pose becomes the identity and its error the dtype's largest value, so that
+    no NaN leaves the solver.
+    """
+    dtype = obs.camera.dtype
+    world = transform(pose, obs.model)
+    error = rms(pixel_residuals(world, obs), obs.mask)
+    finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t))
+    status = jnp.select(
+        [jnp.sum(obs.mask) < 3, ~finite, ~in_front(world, obs), ~converged],
+        [Status.TOO_FEW_POINTS, Status.NOT_FINITE, Status.BEHIND_CAMERA, failure],
+        Status.OK,
+    ).astype(jnp.int32)
+    pose = jax.tree.map(lambda a, b: jnp.where(finite, a, b), pose, Pose.identity(dtype))
+    return pose, jnp.where(finite, error, jnp.finfo(dtype).max), status
+
+
 @jax.jit
-def rotvec_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " 2n"]:
+def rotvec_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " two_n"]:
     """Pixel residuals of the pose `R = Rot(params[:3])` (rotation vector), `t = params[3:]`."""
     world = obs.model @ rotvec_to_matrix(params[:3]).T + params[None, 3:]
     return pixel_residuals(world, obs).reshape(-1)
 
 
 @jax.jit
-def quaternion_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " 2n"]:
+def quaternion_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " two_n"]:
     """Pixel residuals of the pose `R = R(q0, q1, q2, q3)` with `(q1, q2, q3) = params[:3]`
     and `q0 = sqrt(1 - |q|^2)` (the paper's non-linear parameterisation), `t = params[3:]`."""
     world = obs.model @ quaternion_vector_to_matrix(params[:3]).T + params[None, 3:]
@@ -102,7 +131,7 @@ def quaternion_residual(params: Float[Array, " 6"], obs: Observations) -> Float[
 
 
 @jax.jit
-def ray_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " 2n"]:
+def ray_residual(params: Float[Array, " 6"], obs: Observations) -> Float[Array, " two_n"]:
     """Eq. 10: the visual-ray plane residuals `n_k . (Rot(r) m + t) + a_k`, `params = (r, t)`.
 
     Equal to the pixel residual times the depth: the paper's linear method zeroes the

@@ -28,6 +28,8 @@ class StatusCode(enum.IntEnum):
     success in `successes` (default: `OK` alone).
     """
 
+    _message: str  # set per member by `__new__`; an annotation alone is not a member
+
     def __new__(cls, code: int, message: str):
         member = int.__new__(cls, code)
         member._value_ = code

@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._pose import Pose, observations
 from ..geometry._rotation import hat
@@ -66,13 +66,13 @@ def _chart_to_pose_params(chart: Chart) -> Float[Array, "6 6"]:
 
 
 def pose_covariance(
-    camera: Float[Array, "3 4"],
-    model: Float[Array, "n 3"],
-    image: Float[Array, "n 2"],
+    camera: Real[ArrayLike, "3 4"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
     pose: Pose,
-    mask: Bool[Array, " n"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     *,
-    sigma: float | Float[Array, ""] | None = None,
+    sigma: Real[ArrayLike, ""] | None = None,
 ) -> PoseCovariance:
     """Gauss-Newton covariance of a pose from Eq. 8's pixel residuals at that pose.
 

@@ -75,10 +75,7 @@ from ..solvers._residuals import in_front, rounding_level
 from ..solvers._status import Status
 from ._jobs import Jobs, default_chunk, pass_size, ranked, run_jobs
 from ._options import Options, resolve
-from ._triplets import Initial as Initial
-from ._triplets import best_triplet, pose_errors
-from ._triplets import initial_poses as initial_poses
-from ._triplets import triplet_indices as triplet_indices
+from ._triplets import Initial, best_triplet, initial_poses, pose_errors
 
 __all__ = [
     "MixedResult",

@@ -24,10 +24,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import Any, TypeGuard, TypeVar
 
 import jax
 import numpy as np
+
+from ..geometry._validate import no_type_check
 
 __all__ = ["METHODS", "REFINEMENTS", "Options", "RobustOptions", "resolve"]
 
@@ -38,11 +40,11 @@ METHODS = ("mixed", "three_point", "linear", "nonlinear")
 REFINEMENTS = ("linear", "nonlinear", "none")
 
 
-def _is_int(value) -> bool:
+def _is_int(value) -> TypeGuard[int | np.integer]:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
-def _is_real(value) -> bool:
+def _is_real(value) -> TypeGuard[int | float | np.integer | np.floating]:
     return (
         isinstance(value, (int, float, np.integer, np.floating))
         and not isinstance(value, bool)
@@ -78,6 +80,10 @@ def _check_choice(name: str, value, choices: tuple[str, ...]) -> None:
         raise ValueError(f"{name} must be one of {choices}, got {value!r}")
 
 
+# `__post_init__` checks every field, its type included, and raises `ValueError` naming
+# it: the public contract. (`no_type_check`: no annotation check before it, such as the
+# tests' run-time checks, which would raise a `TypeError` for a value of the wrong type.)
+@no_type_check
 @dataclasses.dataclass(frozen=True)
 class Options:
     """The options of the mixed algorithm and of the entry points built on it.
@@ -114,6 +120,11 @@ class Options:
     - `triplet_budget`: use only this many triplets, the ones with the largest image
       triangles (`jaxpose.strategy.spread_triplets`): the fast path for large batches of easy
       problems (default `None`: all of them).
+    - `refine`: how the `solve*` entry points find the answer with the mixed method: the
+      linear method from this many of the best-scored roots of all triplets, the whole
+      mixed algorithm only for a problem where none of them is accepted
+      (`jaxpose.strategy.best_of_roots`; default `4`); `None`: the whole mixed algorithm
+      over every triplet for every problem.
     - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
       `None`: a size that grows with the batch, see `mixed_from_initial_batch`).
     """
@@ -130,6 +141,7 @@ class Options:
     max_steps: int = 50
     max_triplets: int | None = 2000
     triplet_budget: int | None = None
+    refine: int | None = 4
     chunk: int | None = None
 
     def __post_init__(self):
@@ -146,9 +158,11 @@ class Options:
         _check_int("max_steps", self.max_steps, 1)
         _check_int("max_triplets", self.max_triplets, 1, optional=True)
         _check_int("triplet_budget", self.triplet_budget, 1, optional=True)
+        _check_int("refine", self.refine, 1, optional=True)
         _check_int("chunk", self.chunk, 1, optional=True)
 
 
+@no_type_check
 @dataclasses.dataclass(frozen=True)
 class RobustOptions:
     r"""The options of robust mode (`jaxpose.robust`, `jaxpose.solve_pnp_ransac`).
@@ -198,6 +212,7 @@ class RobustOptions:
 _O = TypeVar("_O", Options, RobustOptions)
 
 
+@no_type_check  # it checks its arguments itself (`ValueError`), as `Options` does
 def resolve(options: _O | None, changes: Mapping[str, Any], kind: type[_O] = Options) -> _O:
     """The options an entry point runs with: `options` (`None`: `kind()`, the defaults)
     with the keyword shorthands `changes` applied (`dataclasses.replace`).

@@ -26,16 +26,15 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._pose import Observations, Pose, observations, transform
 from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
-from ..solvers._p3p import three_point
 from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
 from ..solvers._status import Status
 from ._options import RobustOptions, resolve
-from ._triplets import triplet_indices
+from ._triplets import triplet_indices, triplet_roots
 
 __all__ = ["RobustResult", "robust"]
 
@@ -85,10 +84,10 @@ def _score(obs: Observations, pose: Pose, threshold):
 
 
 def robust(
-    camera: Float[Array, "3 4"],
-    model: Float[Array, "n 3"],
-    image: Float[Array, "n 2"],
-    mask: Bool[Array, " n"] | None = None,
+    camera: Real[ArrayLike, "3 4"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+    mask: Bool[ArrayLike, " n"] | None = None,
     *,
     options: RobustOptions | None = None,
     **changes,
@@ -121,14 +120,7 @@ def robust(
     thr = jnp.asarray(options.inlier_threshold, dtype)
 
     def candidates(ijk):
-        sol = three_point(
-            obs.camera,
-            obs.model[ijk],
-            obs.image[ijk],
-            min_area=options.min_area,
-            collinear_tol=options.collinear_tol,
-            approximate=True,
-        )
+        sol = triplet_roots(obs, ijk, options)
         valid = sol.valid & jnp.all(obs.mask[ijk])
         _, count, cost = jax.vmap(lambda R, t: _score(obs, Pose(R, t), thr))(sol.R, sol.t)
         return sol.R, sol.t, valid, count, cost

@@ -13,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ..geometry._pose import Observations, Pose, transform
-from ..solvers._p3p import three_point
-from ..solvers._residuals import pixel_residuals, rms
+from ..geometry._pose import Observations, Pose
+from ..solvers._p3p import ThreePointResult, three_point
+from ..solvers._residuals import pose_error
 from ..solvers._status import Status
 from ._jobs import pass_size
 from ._options import Options, resolve
@@ -107,11 +107,21 @@ class Initial(NamedTuple):
 
 def pose_errors(poses: Pose, obs: Observations) -> Float[Array, " k"]:
     """Eq. 8 error of a batch of poses over all matches of one problem."""
+    return jax.vmap(lambda R, t: pose_error(Pose(R, t), obs))(poses.R, poses.t)
 
-    def one(R, t):
-        return rms(pixel_residuals(transform(Pose(R, t), obs.model), obs), obs.mask)
 
-    return jax.vmap(one)(poses.R, poses.t)
+def triplet_roots(obs: Observations, ijk: Int[Array, " 3"], options) -> ThreePointResult:
+    """Step 1 on the matches `ijk`: up to four poses, near-real roots included (a double
+    root that noise made complex is a useful start), with the degeneracy tests of
+    `options` (`min_area`, `collinear_tol`). Masked matches are not tested here."""
+    return three_point(
+        obs.camera,
+        obs.model[ijk],
+        obs.image[ijk],
+        min_area=options.min_area,
+        collinear_tol=options.collinear_tol,
+        approximate=True,
+    )
 
 
 def initial_poses(
@@ -138,14 +148,7 @@ def initial_poses(
     big = jnp.finfo(dtype).max
 
     def one(ijk):
-        sol = three_point(
-            obs.camera,
-            obs.model[ijk],
-            obs.image[ijk],
-            min_area=options.min_area,
-            collinear_tol=options.collinear_tol,
-            approximate=True,
-        )
+        sol = triplet_roots(obs, ijk, options)
         err = pose_errors(Pose(sol.R, sol.t), obs)
         err = jnp.where(sol.valid & jnp.isfinite(err), err, big)
         order = jnp.argsort(err)

@@ -19,7 +19,7 @@ import numpy as np
 from ..apps._bench import Bench
 from ..apps._polyhedron import Polyhedron, polygon_normals
 from ..geometry._camera import project_numpy
-from ..geometry._validate import as_camera, as_dist_coeffs, as_points
+from ..geometry._validate import as_camera, as_dist_coeffs, as_points, no_type_check
 
 __all__ = ["draw_model", "draw_points", "overlay", "render", "render_bench"]
 
@@ -170,6 +170,9 @@ def _to_fixed(points: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- drawing
 
 
+# `draw_model` and `render_bench` check every argument, its type included (a `ValueError`
+# naming it): no run-time type check before theirs (`jaxpose.geometry._validate`).
+@no_type_check
 def draw_model(
     image: np.ndarray,
     camera,
@@ -435,6 +438,7 @@ def render(
     return out
 
 
+@no_type_check
 def render_bench(bench: Bench, **kwargs) -> np.ndarray:
     """`render` of a bench (`jaxpose.default_bench` or `jaxpose.apps.model_bench`): its model at
     its true pose, seen by its camera, at its image size. `kwargs` go to `render`."""

@@ -173,11 +173,11 @@ def _strips2d(camera, world, edges) -> np.ndarray:
     return uv[edges[front[edges].all(axis=1)]]
 
 
-def _hypothesis_ok(status: int) -> bool:
+def _hypothesis_ok(status: int | np.integer) -> bool:
     return int(status) not in [int(s) for s in _NO_POSE]
 
 
-def _status_color(status: int) -> tuple[int, int, int]:
+def _status_color(status: int | np.integer) -> tuple[int, int, int]:
     return STATUS_COLORS.get(Status(int(status)), _GREY)
 
 

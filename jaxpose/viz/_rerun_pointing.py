@@ -159,7 +159,7 @@ def log_pointing(
     distance = _log_camera_near(rec, camera, parts, world, image_size, image)
     log_pose(rec, "recovered", camera, model_points, (R, t), polyhedron=polyhedron)
     pixel = _np(pixel).reshape(2)
-    found = hit is not None and int(np.asarray(hit.status)) == PointingStatus.OK
+    found = hit if hit is not None and int(np.asarray(hit.status)) == PointingStatus.OK else None
     rec.log(
         "world/camera/image/click",
         rr.Points2D(
@@ -174,8 +174,8 @@ def log_pointing(
 
     _, direction = _f64(backproject, camera, pixel[None])
     direction = direction[0] / np.linalg.norm(direction[0])
-    point = _np(hit.point) if found else None
-    reach = 1.1 * (np.linalg.norm(point - centre) if found else distance)
+    point = None if found is None else _np(found.point)
+    reach = 1.1 * (distance if point is None else np.linalg.norm(point - centre))
     rec.log(
         "world/pointing/ray",
         rr.LineStrips3D(
@@ -186,10 +186,10 @@ def log_pointing(
         static=True,
     )
     lines = list(summary or [])
-    if found:
-        S = _np(hit.covariance)
+    if found is not None and point is not None:
+        S = _np(found.covariance)
         along = float(np.sqrt(max(direction @ S @ direction, 0.0)))
-        face = int(np.asarray(hit.face))
+        face = int(np.asarray(found.face))
         label = f"face {face}: sigma {along:.2f} mm along the ray"
         rec.log(
             "world/pointing/point",
@@ -217,7 +217,7 @@ def log_pointing(
                 ),
                 static=True,
             )
-        normal = _np(hit.normal)
+        normal = _np(found.normal)
         size = float(np.max(np.linalg.norm(world - world.mean(axis=0), axis=1)))
         rec.log(
             "world/pointing/normal",

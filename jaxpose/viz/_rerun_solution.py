@@ -4,11 +4,12 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..solvers._status import Status
+from ..strategy._mixed import MixedResult
 from ._rerun_common import (
     _GREY,
     _RECOVERED,
@@ -37,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..api._solve import Solution
     from ..apps._polyhedron import Polyhedron
     from ..geometry._pose import Pose
-    from ..strategy import Initial, MixedResult
+    from ..strategy import Initial
 
 __all__ = ["log_solution", "log_triplets"]
 
@@ -100,8 +101,8 @@ def log_triplets(
     - `statuses`: `(T,)` status arrays per method, written into the log lines.
     """
     rr = _rr()
-    staged = hasattr(result, "initial")
-    initial = result.initial if staged else result
+    staged = isinstance(result, MixedResult)
+    initial = result.initial if isinstance(result, MixedResult) else result
     tri = np.asarray(initial.triplets)
     T = len(tri)
     status = np.asarray(result.status)
@@ -109,7 +110,7 @@ def log_triplets(
     used = np.array([_hypothesis_ok(s) for s in np.asarray(initial.status)], dtype=bool)
     if errors is None:
         errors = {"three_point": _np(initial.error)}
-        if staged:
+        if isinstance(result, MixedResult):
             errors |= {"linear": _np(result.linear_error), "mixed": error}
     _series(rec, "error_px", errors, used)
     if pose_errors is not None:
@@ -165,6 +166,7 @@ def log_triplets(
     R, t = _np(result.pose.R)[index], _np(result.pose.t)[index]
     colors = np.array([_status_color(codes[k]) for k in index], dtype=np.uint8).reshape(-1, 3)
     labels = [f"{k} {codes[k].name} {error[k]:.3g} px" for k in index]
+    ghosts: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, list[str] | None, float]]
     ghosts = {"hypothesis": (R, t, colors, labels, 1.5)}
     if staged:
         R0, t0 = _np(initial.pose.R)[index], _np(initial.pose.t)[index]
@@ -178,9 +180,9 @@ def log_triplets(
         if len(edges):
             keep = front[:, edges].all(axis=2)  # (U, E): segments in front of the camera
             archetype3, archetype2 = rr.LineStrips3D, rr.LineStrips2D
-            data3 = {"strips": world[:, edges].reshape(-1, 2, 3)}
+            data3: dict[str, Any] = {"strips": world[:, edges].reshape(-1, 2, 3)}
             lengths3 = np.full(len(index), len(edges))
-            data2 = {"strips": uv[:, edges][keep]}
+            data2: dict[str, Any] = {"strips": uv[:, edges][keep]}
             lengths2 = keep.sum(axis=1)
             style = {"radii": rr.Radius.ui_points(radius), "show_labels": labs is not None}
             style2: dict = {}
@@ -195,7 +197,7 @@ def log_triplets(
         rec.log(path3, archetype3.from_fields(**style), static=True)
         if style2:
             rec.log(path2, archetype2.from_fields(**style2), static=True)
-        per_row = {"colors": cols} | ({} if labs is None else {"labels": labs})
+        per_row: dict[str, Any] = {"colors": cols} | ({} if labs is None else {"labels": labs})
         if len(index):
             rec.send_columns(
                 path3,
@@ -219,7 +221,7 @@ def log_triplets(
                 rec.send_columns(
                     path,
                     indexes=at(cleared),
-                    columns=rr.Clear.columns(is_recursive=np.zeros(len(cleared), dtype=bool)),
+                    columns=rr.Clear.columns(is_recursive=[False] * len(cleared)),
                 )
 
 

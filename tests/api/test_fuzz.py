@@ -990,40 +990,30 @@ def _bad_intrinsics(draw):
     return K
 
 
-_BAD_DIST = st.sampled_from(
-    [np.zeros(3), np.ones(6), np.ones((2, 5)), np.array([0.1, np.nan, 0, 0]), np.ones(4) * 1j]
-)
-_BAD_BUDGET = st.sampled_from([0, -3, 1.5, True, "8"])
-_BAD_CHUNK = st.sampled_from([0, -1, 2.5, True, "64"])
-_BAD_DEVICES = st.sampled_from([0, -1, 10**6, "cpu", [], [1, 2], 1.5])
+# Bad values of the arguments that the OpenCV-style and batch entry points share, by name.
+_BAD_OPTIONS = {
+    "camera_matrix": _bad_intrinsics(),
+    "dist_coeffs": st.sampled_from(
+        [np.zeros(3), np.ones(6), np.ones((2, 5)), np.array([0.1, np.nan, 0, 0]), np.ones(4) * 1j]
+    ),
+    "triplet_budget": st.sampled_from([0, -3, 1.5, True, "8"]),
+    "chunk_size": st.sampled_from([0, -1, 2.5, True, "64"]),
+    "devices": st.sampled_from([0, -1, 10**6, "cpu", [], [1, 2], 1.5]),
+}
 
 
 @settings(max_examples=HYPOTHESIS_EXAMPLES)
 @given(data=st.data())
 def test_solve_pnp_rejects_bad_arguments(data):
-    which = data.draw(
-        st.sampled_from(
-            [
-                "object_points",
-                "image_points",
-                "camera_matrix",
-                "dist_coeffs",
-                "method",
-                "triplet_budget",
-            ]
-        )
-    )
+    pnp_options = ("camera_matrix", "dist_coeffs", "triplet_budget")
+    which = data.draw(st.sampled_from(["object_points", "image_points", "method", *pnp_options]))
     args = dict(object_points=_OBJ, image_points=_IMG, camera_matrix=_K)
     if which in ("object_points", "image_points"):
         args[which] = data.draw(_bad_points(3 if which == "object_points" else 2))
-    elif which == "camera_matrix":
-        args[which] = data.draw(_bad_intrinsics())
-    elif which == "dist_coeffs":
-        args[which] = data.draw(_BAD_DIST)
     elif which == "method":
         args[which] = data.draw(st.sampled_from(["", "MIXED", "sqpnp", "p3p"]))
     else:
-        args[which] = data.draw(_BAD_BUDGET)
+        args[which] = data.draw(_BAD_OPTIONS[which])
     with pytest.raises(ValueError, match=which):
         jp.solve_pnp(**args)
 
@@ -1033,20 +1023,7 @@ def test_solve_pnp_rejects_bad_arguments(data):
 def test_solve_pnp_batch_rejects_bad_arguments(data):
     B = 4
     obj, img = np.stack([_OBJ] * B), np.stack([_IMG] * B)
-    which = data.draw(
-        st.sampled_from(
-            [
-                "object_points",
-                "image_points",
-                "camera_matrix",
-                "dist_coeffs",
-                "triplet_budget",
-                "chunk_size",
-                "devices",
-                "batch",
-            ]
-        )
-    )
+    which = data.draw(st.sampled_from(["object_points", "image_points", *_BAD_OPTIONS, "batch"]))
     args = dict(object_points=obj, image_points=img, camera_matrix=_K)
     if which == "object_points":
         bad = data.draw(_bad_points(3).filter(lambda x: not isinstance(x, list)))  # see below
@@ -1061,22 +1038,14 @@ def test_solve_pnp_batch_rejects_bad_arguments(data):
                 [img[0], img[..., :1], np.zeros((B, 2, 2)), img.astype(complex), img.ravel()]
             )
         )
-    elif which == "camera_matrix":
-        args[which] = data.draw(_bad_intrinsics())
-    elif which == "dist_coeffs":
-        args[which] = data.draw(_BAD_DIST)
-    elif which == "triplet_budget":
-        args[which] = data.draw(_BAD_BUDGET)
-    elif which == "chunk_size":
-        args[which] = data.draw(_BAD_CHUNK)
-    elif which == "devices":
-        args[which] = data.draw(_BAD_DEVICES)
-    else:  # NaN in one problem: the numpy boundary names the argument
+    elif which == "batch":  # NaN in one problem: the numpy boundary names the argument
         name = data.draw(st.sampled_from(["object_points", "image_points"]))
         arr = args[name].copy()
         arr[data.draw(st.integers(0, B - 1)), data.draw(st.integers(0, 5)), 0] = np.nan
         args[name] = arr
         which = name
+    else:
+        args[which] = data.draw(_BAD_OPTIONS[which])
     with pytest.raises(ValueError, match=which):
         jp.solve_pnp_batch(**args)
 
@@ -1125,12 +1094,8 @@ def test_solve_batch_rejects_bad_arguments(data):
         )
     elif which == "method":
         args[which] = "bad"
-    elif which == "triplet_budget":
-        args[which] = data.draw(_BAD_BUDGET)
-    elif which == "chunk_size":
-        args[which] = data.draw(_BAD_CHUNK)
     else:
-        args[which] = data.draw(_BAD_DEVICES)
+        args[which] = data.draw(_BAD_OPTIONS[which])
     with pytest.raises(ValueError, match=which):
         jp.solve_batch(**args)
 

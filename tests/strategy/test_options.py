@@ -130,16 +130,16 @@ def test_entry_points_reject_unknown_keywords():
     """Every entry point resolves its options first: an unknown keyword raises at once,
     naming it, before any input is read or anything compiled."""
     s = jp.apps.random_scene(np.random.default_rng(1), 6, world_camera=False)
-    C, M, I = s.camera, s.model_points, s.image_points
+    C, M, I = (jnp.asarray(x) for x in (s.camera, s.model_points, s.image_points))
     K = s.camera[:, :3]  # the camera frame is the world frame: C = K [I | 0]
     obs = jp.observations(C, M, I)
     calls = [
         lambda: jp.solve(C, M, I, mehtod="linear"),
         lambda: jp.solve_many(C, M[None], I[None], mehtod="linear"),
-        lambda: jp.solve_batch(C, M[None], I[None], mehtod="linear"),
-        lambda: jp.solve_pnp(M, I, K, mehtod="linear"),
-        lambda: jp.solve_pnp_batch(M[None], I[None], K, mehtod="linear"),
-        lambda: jp.solve_pnp_ransac(M, I, K, mehtod="linear"),
+        lambda: jp.solve_batch(s.camera, s.model_points[None], s.image_points[None], mehtod="x"),
+        lambda: jp.solve_pnp(s.model_points, s.image_points, K, mehtod="linear"),
+        lambda: jp.solve_pnp_batch(s.model_points[None], s.image_points[None], K, mehtod="x"),
+        lambda: jp.solve_pnp_ransac(s.model_points, s.image_points, K, mehtod="linear"),
         lambda: jp.robust(C, M, I, mehtod="linear"),
         lambda: jp.mixed(obs, mehtod="linear"),
         lambda: jp.strategy.initial_poses(obs, mehtod="linear"),

@@ -27,6 +27,16 @@ def _rows(path):
     return rows
 
 
+def _recorded(path, log, *args, name=None, **kwargs):
+    """The rows of a new recording at `path` filled by `log(rec, *args, **kwargs)`, once
+    the file passes `rerun rrd verify`."""
+    rec = jp.viz.rerun_recording(path, name=name)
+    log(rec, *args, **kwargs)
+    jp.viz.close_recording(rec)
+    verify_recording(path)
+    return _rows(path)
+
+
 def _series(rows, entity):
     """Triplet index -> scalar of a time series."""
     return {r["triplet"]: r["Scalars:scalars"][0] for r in rows[entity] if not r["static"]}
@@ -66,9 +76,9 @@ def test_solution_recording(tmp_path, bench, mixed_result):
     sol = _answer(bench, mixed_result)
     picture = np.full((bench.image_size[1], bench.image_size[0], 3), 40, np.uint8)
     path = tmp_path / "solve.rrd"
-    rec = jp.viz.rerun_recording(path, name="bench")
-    jp.viz.log_solution(
-        rec,
+    rows = _recorded(
+        path,
+        jp.viz.log_solution,
         bench.camera,
         bench.model_points,
         bench.image_points,
@@ -78,10 +88,8 @@ def test_solution_recording(tmp_path, bench, mixed_result):
         true_pose=(bench.R, bench.t),
         image=picture,
         image_size=bench.image_size,
+        name="bench",
     )
-    jp.viz.close_recording(rec)
-    verify_recording(path)
-    rows = _rows(path)
     expected = {
         "/world",
         "/world/camera",
@@ -182,12 +190,7 @@ def test_experiment_recording(tmp_path, bench, mixed_result):
         status={m: np.asarray(res.status) for m in METHOD_NAMES},
         threshold=float(res.threshold),
     )
-    path = tmp_path / "experiment.rrd"
-    rec = jp.viz.rerun_recording(path)
-    jp.viz.log_experiment(rec, bench, result, res)
-    jp.viz.close_recording(rec)
-    verify_recording(path)
-    rows = _rows(path)
+    rows = _recorded(tmp_path / "experiment.rrd", jp.viz.log_experiment, bench, result, res)
     used = set(np.flatnonzero(result.used).tolist())
     for m in METHOD_NAMES:
         for kind, values in (
@@ -211,19 +214,15 @@ def test_three_point_only_and_points_only(tmp_path, bench, mixed_result):
     sol = jp.Solution(
         jp.Pose(bench.R, bench.t), np.float64(0.0), np.float64(0.0), np.int32(0), True, 0
     )
-    path = tmp_path / "points.rrd"
-    rec = jp.viz.rerun_recording(path)
-    jp.viz.log_solution(
-        rec,
+    rows = _recorded(
+        tmp_path / "points.rrd",
+        jp.viz.log_solution,
         bench.camera,
         bench.model_points,
         bench.image_points,
         sol,
         triplets=mixed_result.initial,
     )
-    jp.viz.close_recording(rec)
-    verify_recording(path)
-    rows = _rows(path)
     assert "/world/model/recovered" not in rows and "/world/triplets/three_point" not in rows
     assert "/world/points/recovered" in rows and "/world/triplets/hypothesis" in rows
     hypotheses = {
@@ -260,10 +259,9 @@ def test_pointing_recording(tmp_path, bench):
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     robot = jp.apps.default_robot()._replace(base_R=turn, base_t=np.array([10.0, -5.0, 2.0]))
     joints = np.array([30.0, -40.0, 0.5, 0.3])
-    path = tmp_path / "point.rrd"
-    rec = jp.viz.rerun_recording(path)
-    jp.viz.log_pointing(
-        rec,
+    rows = _recorded(
+        tmp_path / "point.rrd",
+        jp.viz.log_pointing,
         bench.camera,
         (400.0, 250.0),
         hit,
@@ -273,9 +271,6 @@ def test_pointing_recording(tmp_path, bench):
         joints=joints,
         n_sigma=2.0,
     )
-    jp.viz.close_recording(rec)
-    verify_recording(path)
-    rows = _rows(path)
     e = {
         k: _only(rows, "/world/pointing/covariance", f"Ellipsoids3D:{k}")[0]
         for k in ("half_sizes", "quaternions")
