@@ -3,6 +3,11 @@ algorithm (three-point, linear, Levenberg-Marquardt, retries) in `jax.lax` contr
 robust scoring by consensus, pose covariance, the implicit derivative of the answer.
 """
 
+from ._best import Answer as Answer
+from ._best import Best as Best
+from ._best import answer as answer
+from ._best import answer_batch as answer_batch
+from ._best import best_of_roots as best_of_roots
 from ._covariance import PoseCovariance as PoseCovariance
 from ._covariance import pose_covariance as pose_covariance
 from ._mixed import MixedResult as MixedResult

@@ -34,12 +34,14 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry._pose import Observations, Pose
+from ..solvers._components import mat_from_array, vec_from_array
+from ..solvers._kernel_linear import matches_from_observations, pixel_error_kernel
 from ..solvers._linear import linear
 from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
 from ._mixed import _planar_partner, mixed_from_initial, mixed_from_initial_batch
 from ._options import Options
-from ._triplets import best_triplet, initial_poses, pose_errors, select_triplets, triplet_roots
+from ._triplets import best_triplet, initial_poses, select_triplets, triplet_roots
 
 __all__ = ["Answer", "Best", "answer", "answer_batch", "best_of_roots"]
 
@@ -82,7 +84,8 @@ def best_of_roots(obs: Observations, triplets: Int[ArrayLike, "T 3"], options: O
     roots = jax.vmap(lambda ijk: triplet_roots(obs, ijk, options))(triplets)
     valid = roots.valid & jnp.all(obs.mask[triplets], axis=1)[:, None]  # (T, 4)
     R, t = roots.R.reshape(4 * T, 3, 3), roots.t.reshape(4 * T, 3)
-    score = pose_errors(Pose(R, t), obs)
+    matches = matches_from_observations(jax.tree.map(lambda x: x[None], obs))
+    score = pixel_error_kernel(mat_from_array(R), vec_from_array(t), matches)
     score = jnp.where(valid.reshape(-1) & jnp.isfinite(score), score, big)
 
     # 2. the linear method from the best few
