@@ -2,6 +2,7 @@
 
 Draws random noise-free, non-degenerate instances and solves every one of them with
 jaxpose's three-point solver (`jax.jit(jax.vmap(p3p))`, one call for the whole batch),
+its batch-first kernel (`jax.jit(p3p_batch)`, the same algorithm in component form),
 `cv2.solveP3P(..., flags=cv2.SOLVEPNP_P3P)` (Ding et al., CVPR 2023) and `poselib.p3p`
 (Lambda Twist / PoseLib), on the same instances.
 
@@ -15,8 +16,10 @@ Per solver: the share of instances where some returned solution is the true pose
 (rotation angle error < tol rad and |dt| / |t| < tol; tol = 1e-6 by default), the
 99.9th percentile and the median of the best solution's error max(angle, |dt| / |t|),
 the mean number of returned solutions (and how many were non-finite), and the time per
-triplet: jaxpose amortised over the batch after a warm-up call (best of a few runs),
-the peers as a Python loop of single calls (their figures include the call overhead).
+triplet: jaxpose amortised over the batch after a warm-up call (best of a few runs; the
+vmapped solver and the kernel timed alternately, so that the load of a shared machine
+weighs on both alike), the peers as a Python loop of single calls (their figures include
+the call overhead).
 
     python benchmarks/p3p_rate.py --n 100000 --seed 0 --dtype float64
 
@@ -43,7 +46,7 @@ from benchmarks._harness import (
     Stopwatch,
     random_rotations,
     rotation_angle,
-    timeit,
+    timeit_many,
     write_json,
 )
 
@@ -117,11 +120,35 @@ def best_of(R_true, t_true, candidates):
     return angle[k], rel[k], len(candidates) - len(finite)
 
 
-def run_jaxpose(data, dtype, repeats, chunk=0):
+def _jaxpose_row(data, timing):
+    """The accuracy columns of one jaxpose timing (`R`, `t`, `valid` outputs)."""
+    import jax
+
+    Rs, ts, valid = (np.asarray(x) for x in timing.result)
+    angle, rel = pose_errors(data["R"][:, None], data["t"][:, None], Rs, ts)
+    angle = np.where(valid, angle, np.inf)
+    rel = np.where(valid, rel, np.inf)
+    k = np.argmin(np.maximum(angle, rel), axis=1)
+    idx = np.arange(len(k))
+    runs = list(timing.times)
+    extra = {
+        "compile_and_first_call_s": timing.first,
+        "runs_s": runs,
+        "cpu_s": timing.cpu,
+        "device": str(jax.devices()[0]),
+    }
+    nonfinite = ~(np.isfinite(Rs).all(axis=(-2, -1)) & np.isfinite(ts).all(axis=-1))
+    return angle[idx, k], rel[idx, k], valid.sum(1), nonfinite.sum(1), min(runs), extra
+
+
+def run_jaxpose(data, dtype, repeats, chunk=0, kernel=True):
+    """`jax.vmap(p3p)` (with `chunk`: as `lax.map` over vmapped chunks of that size) and,
+    with `kernel`, `p3p_batch`, timed alternately on the same instances."""
     import jax
     import jax.numpy as jnp
 
     from jaxpose.solvers import p3p
+    from jaxpose.solvers._kernel_p3p import p3p_batch
 
     if chunk:
         # The batch as a sequence of vmapped chunks (`lax.map`): each fused kernel then
@@ -131,22 +158,15 @@ def run_jaxpose(data, dtype, repeats, chunk=0):
             out = jax.lax.map(lambda a: jax.vmap(p3p)(*a), (f.reshape(shape), m.reshape(shape)))
             return jax.tree.map(lambda y: y.reshape(len(f), *y.shape[2:]), out)
 
-        fn = jax.jit(batched)
+        fns = [jax.jit(batched)]
     else:
-        fn = jax.jit(jax.vmap(p3p))
+        fns = [jax.jit(jax.vmap(p3p))]
+    if kernel:
+        fns.append(jax.jit(p3p_batch))
     f = jnp.asarray(data["f"], dtype)
     m = jnp.asarray(data["m"], dtype)
-    timing = timeit(fn, f, m, warmup=1, repeat=repeats)
-    first, runs = timing.first, list(timing.times)
-    Rs, ts, valid = (np.asarray(x) for x in timing.result)
-    angle, rel = pose_errors(data["R"][:, None], data["t"][:, None], Rs, ts)
-    angle = np.where(valid, angle, np.inf)
-    rel = np.where(valid, rel, np.inf)
-    k = np.argmin(np.maximum(angle, rel), axis=1)
-    idx = np.arange(len(k))
-    extra = {"compile_and_first_call_s": first, "runs_s": runs, "device": str(jax.devices()[0])}
-    nonfinite = ~(np.isfinite(Rs).all(axis=(-2, -1)) & np.isfinite(ts).all(axis=-1))
-    return angle[idx, k], rel[idx, k], valid.sum(1), nonfinite.sum(1), min(runs), extra
+    timings = timeit_many(fns, f, m, warmup=1, repeat=repeats)
+    return [_jaxpose_row(data, timing) for timing in timings]
 
 
 def run_opencv(data):
@@ -214,10 +234,11 @@ def main(argv=None) -> dict:
 
     data = draw(args.n, args.seed)
     dtype = jnp.float64 if args.dtype == "float64" else jnp.float32
-    runs = {f"jaxpose p3p ({args.dtype})": run_jaxpose(data, dtype, args.repeats)}
+    vmapped, kernel = run_jaxpose(data, dtype, args.repeats)
+    runs = {f"jaxpose p3p ({args.dtype})": vmapped, f"jaxpose kernel ({args.dtype})": kernel}
     if args.chunk:
         name = f"  same, chunks of {args.chunk}"
-        runs[name] = run_jaxpose(data, dtype, args.repeats, args.chunk)
+        runs[name] = run_jaxpose(data, dtype, args.repeats, args.chunk, kernel=False)[0]
     if not args.no_peers:
         runs["cv2.solveP3P (float64)"] = run_opencv(data)
         runs["poselib.p3p (float64)"] = run_poselib(data)
@@ -253,10 +274,17 @@ def main(argv=None) -> dict:
             only_other = int((found[other] & ~ours).sum())
             only_ours = int((ours & ~found[other]).sum())
             print(f"  found by {other} but not jaxpose: {only_other}; the reverse: {only_ours}")
-    jax_row = rows[names[0]]
+    for name in names[:2]:
+        r = rows[name]
+        print(
+            f"{name}: compile + first call {r['compile_and_first_call_s']:.1f} s, timed runs "
+            f"{', '.join(f'{x:.3f}' for x in r['runs_s'])} s for {args.n} triplets"
+        )
+    ref_row, kernel_row = rows[names[0]], rows[names[1]]
+    speedup = ref_row["ns_per_triplet"] / kernel_row["ns_per_triplet"]
     print(
-        f"jaxpose: compile + first call {jax_row['compile_and_first_call_s']:.1f} s, "
-        f"timed runs {', '.join(f'{x:.3f}' for x in jax_row['runs_s'])} s for {args.n} triplets; "
+        f"kernel / vmap(p3p): {speedup:.1f} times faster (wall), "
+        f"{ref_row['cpu_s'] / kernel_row['cpu_s']:.1f} times (process CPU); "
         f"peers timed as a Python loop of single calls; {os.cpu_count()} CPUs"
     )
 
@@ -264,6 +292,7 @@ def main(argv=None) -> dict:
         "args": vars(args),
         "instances": {"n": args.n, "rejected_as_degenerate_share": data["rejected_share"]},
         "rows": rows,
+        "kernel_speedup": speedup,
         "jax_version": jax.__version__,
         "machine": platform.platform(),
         "cpu_count": os.cpu_count(),

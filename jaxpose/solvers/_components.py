@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -37,6 +38,13 @@ __all__ = [
     "vec_from_array",
     "vec_to_array",
     "norm_sq",
+    "combine",
+    "first_extreme",
+    "quadratic_form",
+    "rows",
+    "symmetric",
+    "together",
+    "trace_product",
 ]
 
 
@@ -185,3 +193,86 @@ def adjugate(m: Mat3) -> Mat3:
 def norm_sq(a: Vec3) -> Array:
     """`|a|^2`."""
     return a.x * a.x + a.y * a.y + a.z * a.z
+
+
+def rows(m: Mat3) -> tuple[tuple[Array, Array, Array], ...]:
+    """The rows of `M` as nested tuples (`rows(m)[i][j]` is entry `(i, j)`)."""
+    return ((m.xx, m.xy, m.xz), (m.yx, m.yy, m.yz), (m.zx, m.zy, m.zz))
+
+
+def symmetric(xx, xy, xz, yy, yz, zz) -> Mat3:
+    """A symmetric `Mat3` from its six distinct entries (shared, not copied)."""
+    return Mat3(xx, xy, xz, xy, yy, yz, xz, yz, zz)
+
+
+def combine(a, m: Mat3, b, n: Mat3) -> Mat3:
+    """`a M + b N`, entrywise (`a`, `b` arrays or scalars)."""
+    return Mat3(*(a * u + b * v for u, v in zip(m, n, strict=True)))
+
+
+def quadratic_form(u: Vec3, m: Mat3, v: Vec3) -> Array:
+    """`u^T M v`, evaluated as `(u^T M) v`."""
+    return dot(transpose_matvec(m, u), v)
+
+
+def trace_product(a: Mat3, b: Mat3) -> Array:
+    """`trace(A B)`, as the sum of the diagonal of the product."""
+    ra, rb = rows(a), rows(b)
+    diag = [ra[i][0] * rb[0][i] + ra[i][1] * rb[1][i] + ra[i][2] * rb[2][i] for i in range(3)]
+    return diag[0] + diag[1] + diag[2]
+
+
+def first_extreme(keys, values, *, smallest: bool = False):
+    """`jnp.argmax` (`smallest`: `jnp.argmin`) over a list of arrays, as a chain of
+    `jnp.where`: the extreme key and the `values[k]` (any pytree) of the first `k` that
+    attains it (ties: the first, as `argmax` picks)."""
+    best, out = keys[0], values[0]
+    for key, val in zip(keys[1:], values[1:], strict=True):
+        better = key < best if smallest else key > best
+        best = jnp.where(better, key, best)
+        out = jax.tree.map(lambda a, b, c=better: jnp.where(c, a, b), val, out)
+    return best, out
+
+
+def together(tree, group: int = 8):
+    """The arrays of `tree` unchanged, computed together: for each shape, variadic
+    reductions of `group` arrays each (all at once when `0`) over a trailing axis of
+    length 2 padded with `-0` (`x + -0 = x` exactly; `or` with `False` for masks).
+
+    XLA:CPU writes every output of a fused graph with a loop of its own, which
+    recomputes the output's whole cone of operations, and it drops optimisation barriers
+    before fusing. A variadic reduction is the one loop with several outputs that it
+    forms: the shared operations are computed once per element, the outputs written
+    once, and what follows starts from them. Loops of a few outputs vectorise best (8
+    measured best for the three-point kernel's stages). No derivative rule: for values
+    computed without gradient (`stop_gradient`), or see `_kernel_linear._together`.
+    """
+    leaves, treedef = jax.tree.flatten(tree)
+    by_shape: dict = {}
+    for k, leaf in enumerate(leaves):
+        by_shape.setdefault(leaf.shape, []).append(k)
+    out = list(leaves)
+    for ks in by_shape.values():
+        loops = -(-len(ks) // group) if group else 1  # of near-equal sizes
+        for i in range(loops):
+            part = ks[i * len(ks) // loops : (i + 1) * len(ks) // loops]
+            arrays = [leaves[k] for k in part]
+            ndim = arrays[0].ndim
+            if len(arrays) == 1:  # a lone reduction leaves XLA's loops: give it company
+                arrays.append(jnp.zeros_like(arrays[0]))
+            pads = tuple(
+                jnp.zeros((), a.dtype) if a.dtype == jnp.bool_ else -jnp.zeros((), a.dtype)
+                for a in arrays
+            )
+            padded = tuple(
+                jax.lax.pad(a[..., None], v, [(0, 0, 0)] * ndim + [(0, 1, 0)])
+                for a, v in zip(arrays, pads, strict=True)
+            )
+            results = jax.lax.reduce(padded, pads, _or_add, (ndim,))
+            for k, r in zip(part, results[: len(part)], strict=True):
+                out[k] = r
+    return jax.tree.unflatten(treedef, out)
+
+
+def _or_add(x, y):
+    return tuple(u | w if u.dtype == jnp.bool_ else u + w for u, w in zip(x, y, strict=True))
