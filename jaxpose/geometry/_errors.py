@@ -20,6 +20,14 @@ from ._camera import backproject, project
 from ._numerics import as_float, masked_mean, safe_norm, safe_sqrt
 from ._pose import Pose, transform
 
+# The arguments every error measure takes (one problem).
+Camera = Real[ArrayLike, "3 4"]
+Rotation = Real[ArrayLike, "3 3"]
+Translation = Real[ArrayLike, " 3"]
+ModelPoints = Real[ArrayLike, "n 3"]
+ImagePoints = Real[ArrayLike, "n 2"]
+Mask = Bool[ArrayLike, " n"] | None
+
 __all__ = [
     "pose_error",
     "pose_error_per_point",
@@ -29,11 +37,11 @@ __all__ = [
 
 
 def reprojection_residuals(
-    C: Real[ArrayLike, "3 4"],
-    R: Real[ArrayLike, "3 3"],
-    t: Real[ArrayLike, " 3"],
-    model: Real[ArrayLike, "n 3"],
-    image: Real[ArrayLike, "n 2"],
+    C: Camera,
+    R: Rotation,
+    t: Translation,
+    model: ModelPoints,
+    image: ImagePoints,
 ) -> Float[Array, "n 2"]:
     """Pixel residuals of a pose: projection of each posed model point minus its match.
 
@@ -57,12 +65,12 @@ def reprojection_residuals(
 
 
 def reprojection_rms(
-    C: Real[ArrayLike, "3 4"],
-    R: Real[ArrayLike, "3 3"],
-    t: Real[ArrayLike, " 3"],
-    model: Real[ArrayLike, "n 3"],
-    image: Real[ArrayLike, "n 2"],
-    mask: Bool[ArrayLike, " n"] | None = None,
+    C: Camera,
+    R: Rotation,
+    t: Translation,
+    model: ModelPoints,
+    image: ImagePoints,
+    mask: Mask = None,
 ) -> Float[Array, ""]:
     """Root-mean-square reprojection error of a pose (SPEC Eq. 8), in pixels.
 
@@ -88,11 +96,11 @@ def reprojection_rms(
 
 
 def pose_error_per_point(
-    C: Real[ArrayLike, "3 4"],
-    R: Real[ArrayLike, "3 3"],
-    t: Real[ArrayLike, " 3"],
-    model: Real[ArrayLike, "n 3"],
-    image: Real[ArrayLike, "n 2"],
+    C: Camera,
+    R: Rotation,
+    t: Translation,
+    model: ModelPoints,
+    image: ImagePoints,
 ) -> Float[Array, " n"]:
     """The paper's per-vertex pose error (SPEC Section 4), in model units.
 
@@ -135,12 +143,12 @@ def pose_error_per_point(
 
 
 def pose_error(
-    C: Real[ArrayLike, "3 4"],
-    R: Real[ArrayLike, "3 3"],
-    t: Real[ArrayLike, " 3"],
-    model: Real[ArrayLike, "n 3"],
-    image: Real[ArrayLike, "n 2"],
-    mask: Bool[ArrayLike, " n"] | None = None,
+    C: Camera,
+    R: Rotation,
+    t: Translation,
+    model: ModelPoints,
+    image: ImagePoints,
+    mask: Mask = None,
 ) -> Float[Array, ""]:
     """Mean of the paper's per-vertex pose error (SPEC Section 4), in model units.
 
