@@ -7,7 +7,8 @@ the problems several benchmarks draw, JSON output and the wording of targets.
   `jax.block_until_ready`; `Stopwatch` for one-off durations (a loop over problems, a
   compile, a whole run).
 - `spawn(module, spec)` / `worker_main(workers)`: one measurement in a fresh Python
-  process (cold compiles, a clean peak memory), its result sent back as JSON.
+  process (cold compiles, a clean peak memory), its result sent back as JSON;
+  `peak_memory_mb()`: the peak resident memory of this process.
 - Problems: `K_PIXELS` (f = 800 px, 640x480), `bench_problem` (the paper's bench),
   `batch_problems` (independent random scenes, OpenCV's convention), `opencv_block` (the
   OpenCV SQPnP + RefineLM loop they are compared with), `random_rotations`.
@@ -23,6 +24,7 @@ import dataclasses
 import json
 import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -51,7 +53,7 @@ PACKAGES = ("jax", "jaxlib", "numpy", "optimistix", "equinox", "poselib", "matpl
 
 
 def _package_versions() -> dict:
-    out = {"jaxpose": jp.__version__, "opencv": cv2.__version__}
+    out: dict[str, str | None] = {"jaxpose": jp.__version__, "opencv": cv2.__version__}
     for pkg in PACKAGES:
         try:
             out[pkg] = version(pkg)
@@ -265,6 +267,18 @@ def worker_main(workers: dict[str, Callable[[dict], dict]], argv: Sequence[str] 
     res = workers[spec["kind"]](spec)
     print(MARK + json.dumps(res), flush=True)
     return res
+
+
+def peak_memory_mb() -> dict:
+    """The peak resident memory of this process so far (MB): `vm_hwm` (`VmHWM` of
+    `/proc/self/status`; `None` off Linux) and `ru_maxrss` (`getrusage`). In a process
+    started by `subprocess` (`vfork` + `exec`), `ru_maxrss` starts at the parent's peak:
+    `vm_hwm` is the process's own figure."""
+    hwm = _proc_field("/proc/self/status", "VmHWM")
+    return {
+        "ru_maxrss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "vm_hwm": int(hwm.split()[0]) / 1024.0 if hwm else None,
+    }
 
 
 # --------------------------------------------------------------------------- problems

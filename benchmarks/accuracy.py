@@ -210,7 +210,7 @@ def diagnose(rep: dict, *, max_steps: int = 500) -> dict:
             "message": status.message,
             "error_px": float(sol.error),
             "error_minus_ml_px": float(sol.error) - ml,
-            "triplet": int(sol.triplet),
+            "triplet": [int(i) for i in np.asarray(sol.triplet)],
         }
         if rep["n"] > 10:
             return out

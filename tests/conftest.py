@@ -1,8 +1,15 @@
-"""Strict test configuration: float64, rank promotion raises, warnings are errors."""
+"""Strict test configuration: float64, rank promotion raises, warnings are errors; compiled
+programs cached for the run."""
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+# One compilation of each program for the whole run, shared by the workers (and by the
+# command-line subprocesses, which read the same variable): jaxpose's program cache and
+# JAX's persistent compilation cache under .pytest_cache/.
+CACHE = Path(__file__).resolve().parent.parent / ".pytest_cache" / "jaxpose"
+os.environ.setdefault("JAXPOSE_CACHE_DIR", str(CACHE))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -12,6 +19,8 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "standard")
+jax.config.update("jax_compilation_cache_dir", str(CACHE / "xla"))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 settings.register_profile(
     "default",

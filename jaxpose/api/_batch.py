@@ -34,6 +34,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ..geometry._validate import no_type_check
+from ._programs import Program, program_name
 
 __all__ = ["batch_mesh", "batch_devices", "run_batched"]
 
@@ -95,13 +96,14 @@ def _compiled(
     fn: Callable, trailing: tuple, keywords: tuple, mesh: Mesh | None, n_shared: int, n_batched: int
 ):
     """`fn(*shared, *batched, *trailing, **keywords)`, jitted; under `shard_map` over `mesh`
-    if given. Cached on its arguments, so that repeated calls reuse one compiled program."""
+    if given. Cached on its arguments, so that repeated calls reuse one compiled program;
+    on one device a `Program`, whose executables are kept on disk too."""
 
     def call(*arrays):
         return fn(*arrays, *trailing, **dict(keywords))
 
     if mesh is None:
-        return jax.jit(call)
+        return Program(call, program_name(fn, trailing, keywords))
     specs = (P(),) * n_shared + (P(AXIS),) * n_batched
     return jax.jit(
         jax.shard_map(call, mesh=mesh, in_specs=specs, out_specs=P(AXIS), check_vma=False)
@@ -122,6 +124,15 @@ def _fetch(x: jax.Array) -> np.ndarray:
     return np.asarray(multihost_utils.process_allgather(x, tiled=True))
 
 
+def _tail_size(rows: int, chunk: int, smallest: int, devices: int) -> int:
+    """The padded size of a chunk of `rows` problems: the smallest `smallest * 2^k`
+    holding them (a multiple of the device count), at most `chunk`."""
+    size = max(1, smallest)
+    while size < rows:
+        size *= 2
+    return min(chunk, math.ceil(size / devices) * devices)
+
+
 def _pad_rows(x: np.ndarray, size: int) -> np.ndarray:
     """`x` with its last row repeated up to `size` rows (a valid problem, not zeros)."""
     if x.shape[0] == size:
@@ -140,6 +151,7 @@ def run_batched(
     static: Mapping[str, Any] | tuple = (),
     chunk_size: int | None = None,
     devices=None,
+    min_tail: int | None = None,
 ) -> Any:
     """Run a batched function over a large batch: sharded over devices, chunk by chunk.
 
@@ -161,6 +173,9 @@ def run_batched(
       problem, so every chunk has one shape (one compilation).
     - `devices`: see `batch_devices` (default: all devices). With one device the chunks
       run as plain jitted calls; with several, each chunk is split over them.
+    - `min_tail`: `None` (the last chunk is padded to `chunk_size`), or a size: the last
+      chunk is padded only to the smallest `min_tail * 2^k` that holds it (a few more
+      compiled shapes, less padding for a remainder much smaller than the chunk).
 
     **Returns:** `fn`'s output pytree as numpy arrays of `B` rows (on every process).
 
@@ -213,7 +228,8 @@ def run_batched(
     pending = None
     for start in range(0, B, chunk):
         stop = min(start + chunk, B)
-        rows = [put(_pad_rows(x[start:stop], chunk)) for x in batched]
+        size = chunk if min_tail is None else _tail_size(stop - start, chunk, min_tail, k)
+        rows = [put(_pad_rows(x[start:stop], size)) for x in batched]
         result = call(*shared_dev, *rows)  # dispatched asynchronously
         if pending is not None:
             collect(*pending)

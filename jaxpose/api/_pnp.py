@@ -32,22 +32,54 @@ from ..solvers._status import Status
 from ..strategy._options import Options, RobustOptions, resolve
 from ..strategy._robust import robust
 from ._batch import run_batched
+from ._programs import bucket_points, program
 from ._solve import solve, solve_many
 
 __all__ = ["solve_pnp", "solve_pnp_batch", "solve_pnp_ransac"]
 
 
-@functools.partial(jax.jit, static_argnames=("options",))
-def _solve_opencv(K, obj, img, options: Options):
+def _solve_opencv(K, obj, img, mask, options: Options):
+    """One problem in OpenCV's conventions (the program of `solve_pnp`)."""
     C = camera_matrix(K)
-    sol = solve(C, obj, img, options=options)
+    sol = solve(C, obj, img, mask, options=options)
     return sol.accepted, matrix_to_rotvec(sol.pose.R), sol.pose.t
 
 
-@functools.partial(jax.jit, static_argnames=("options",))
-def _batched_opencv(K, obj, img, options: Options):
-    sol = solve_many(camera_matrix(K), obj, img, options=options)
+def _batched_opencv(K, obj, img, mask, options: Options):
+    """A batch in OpenCV's conventions (the program of `solve_pnp_batch`)."""
+    sol = solve_many(camera_matrix(K), obj, img, mask, options=options)
     return sol.accepted, jax.vmap(matrix_to_rotvec)(sol.pose.R), sol.pose.t
+
+
+def _pad_points(obj: np.ndarray, img: np.ndarray):
+    """`(obj, img, mask)` with the point axis (the second to last) padded to its bucket
+    (`bucket_points`): padding rows repeat the first point, masked out."""
+    n = obj.shape[-2]
+    size = bucket_points(n)
+    mask = np.zeros((*obj.shape[:-2], size), bool)
+    mask[..., :n] = True
+    if size == n:
+        return obj, img, mask
+
+    def pad(x):
+        first = np.broadcast_to(x[..., :1, :], (*x.shape[:-2], size - n, x.shape[-1]))
+        return np.concatenate([x, first], axis=-2)
+
+    return pad(obj), pad(img), mask
+
+
+@functools.lru_cache(maxsize=64)
+def _stages(options: Options) -> tuple[Options, Options | None]:
+    """The programs an OpenCV-convention call runs: with the answer from the best roots
+    (`refine`) and its fallback, first `best_of_roots` alone, then, only for problems it
+    did not settle, the whole mixed algorithm (`refine=None`: what the fallback computes),
+    each compiled when first needed. Otherwise `options` alone."""
+    if options.method != "mixed" or options.refine is None or not options.fallback:
+        return options, None
+    return (
+        dataclasses.replace(options, fallback=False),
+        dataclasses.replace(options, refine=None),
+    )
 
 
 def _read_array(x, name: str) -> np.ndarray:
@@ -122,15 +154,25 @@ def solve_pnp(
     """
     options = resolve(options, changes)
     K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, False)
+    first, then = _stages(options)
+    obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     with jax.enable_x64(True):
-        ok, rvec, tvec = _solve_opencv(
-            jnp.asarray(K, jnp.float64),
-            jnp.asarray(obj, jnp.float64),
-            jnp.asarray(img, jnp.float64),
-            options,
-        )
+        args = (jnp.asarray(K, jnp.float64), jnp.asarray(obj), jnp.asarray(img))
+        args += (jnp.asarray(mask),)
+        ok, rvec, tvec = program(_solve_opencv, first)(*args)
+        if then is not None and not bool(ok):
+            ok, rvec, tvec = program(_solve_opencv, then)(*args)
         ok, rvec, tvec = bool(ok), np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
     return ok, rvec.reshape(3, 1), tvec.reshape(3, 1)
+
+
+#: Problems per compiled call of `solve_pnp_batch` (`chunk_size=None`). A batch runs
+#: in chunks of this size, its remainder in the smallest `MIN_CHUNK * 2^k` that holds
+#: it: a handful of compiled programs whatever `B`, memory bounded by the chunk.
+CHUNK = 4096
+MIN_CHUNK = 16
+#: The same for the problems that run the whole mixed algorithm (every triplet each).
+FALLBACK_CHUNK = 64
 
 
 @no_type_check
@@ -150,27 +192,43 @@ def solve_pnp_batch(
     **Arguments:** `object_points` `(B, n, 3)` or shared `(n, 3)`; `image_points`
     `(B, n, 2)`; one `camera_matrix` and `dist_coeffs` for all.
 
-    `options`, `**changes`: as `solve_pnp`. `triplet_budget=k` solves only `k` well-spread
-    triplets per problem (see `jaxpose.solve`): the exhaustive `C(n, 3)` costs `n^3` per
-    problem.
+    `options`, `**changes`: as `solve_pnp`. By default each problem's answer comes from
+    the best roots of its well-spread triplets (`Options.refine`, `spread_points`); the
+    problems those do not settle then run the whole mixed algorithm, together, in a
+    second compiled program (built only when first needed).
 
-    `chunk_size`: at most this many problems per compiled call (bounded memory; `None`:
-    all at once); `devices`: the batch is split over these (`None`: all of
-    `jax.devices()`; an int: the first ones); see `jaxpose.api.run_batched`.
+    `chunk_size`: at most this many problems per compiled call (`None`: `CHUNK`, 4096,
+    the remainder in a smaller bucket; memory is bounded by the chunk whatever `B`);
+    `devices`: the batch is split over these (`None`: all of `jax.devices()`; an int:
+    the first ones); see `jaxpose.api.run_batched`.
 
     **Returns:** `(ok (B,), rvecs (B, 3), tvecs (B, 3))`, OpenCV's conventions.
     """
     options = resolve(options, changes)
     K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
+    first, then = _stages(options)
+    K = np.asarray(K, np.float64)
+    obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     with jax.enable_x64(True):
-        ok, rvecs, tvecs = run_batched(
-            _batched_opencv,
-            (np.asarray(K, np.float64),),
-            (np.asarray(obj, np.float64), np.asarray(img, np.float64)),
-            static=(options,),
-            chunk_size=chunk_size,
-            devices=devices,
-        )
+
+        def run(obj, img, mask, options, largest):
+            return run_batched(
+                _batched_opencv,
+                (K,),
+                (obj, img, mask),
+                static=(options,),
+                chunk_size=chunk_size or largest,
+                devices=devices,
+                min_tail=None if chunk_size else MIN_CHUNK,
+            )
+
+        ok, rvecs, tvecs = run(obj, img, mask, first, CHUNK)
+        need = np.flatnonzero(~np.asarray(ok))
+        if then is not None and need.size:
+            # the problems the best roots did not settle: the whole mixed algorithm
+            redo = run(obj[need], img[need], mask[need], then, FALLBACK_CHUNK)
+            for out, part in zip((ok, rvecs, tvecs), redo, strict=True):
+                out[need] = part
         return np.asarray(ok), np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64)
 
 

@@ -41,8 +41,8 @@ class Solution(NamedTuple):
     - `pose_error`: the paper's pose error (model units, e.g. mm).
     - `status`: `Status` code of the answer (`Status(int(status)).message`).
     - `accepted`: whether a pose was accepted (`ok` of `solve_pnp`).
-    - `triplet`: index (into `jaxpose.strategy.triplet_indices(n, max_triplets)`) of the triplet it
-      came from.
+    - `triplet`: the three matches (indices into `model`) of the triplet whose
+      three-point root led to the answer, `(3,)` int32.
     """
 
     pose: Pose
@@ -50,7 +50,7 @@ class Solution(NamedTuple):
     pose_error: Float[Array, ""]
     status: Int[Array, ""]
     accepted: Bool[Array, ""]
-    triplet: Int[Array, ""]
+    triplet: Int[Array, " 3"]
 
 
 # The entry points check their arguments themselves (`check_problem`, `as_batched`: a
@@ -105,13 +105,13 @@ def solve(
     if options.method == "mixed" and options.refine is not None:
         found = answer(sobs, options)
         return _not_finite(_finish_answer(obs, found), finite)
-    rows, initial = _initial(obs, options)
+    initial = _initial(obs, options)
     if options.method == "mixed":
         res = mixed_from_initial(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
     else:
         found = _per_triplet(sobs, initial, options)
-    return _not_finite(_finish(options.method, obs, rows, *found), finite)
+    return _not_finite(_finish(options.method, obs, initial.triplets, *found), finite)
 
 
 @no_type_check
@@ -151,7 +151,7 @@ def solve_many(
         found = answer_batch(jax.lax.stop_gradient(obs), options)
         return jax.vmap(_not_finite)(jax.vmap(_finish_answer)(obs, found), finite)
     T = triplet_count(model.shape[1], options)
-    rows, initial = jax.lax.map(
+    initial = jax.lax.map(
         lambda o: _initial(o, options), obs, batch_size=max(1, min(B, CHUNK // T))
     )
     sobs = jax.lax.stop_gradient(obs)
@@ -161,7 +161,8 @@ def solve_many(
     else:
         found = jax.vmap(lambda o, i: _per_triplet(o, i, options))(sobs, initial)
     return jax.vmap(_not_finite)(
-        jax.vmap(functools.partial(_finish, options.method))(obs, rows, *found), finite
+        jax.vmap(functools.partial(_finish, options.method))(obs, initial.triplets, *found),
+        finite,
     )
 
 
@@ -228,16 +229,16 @@ def _not_finite(sol: Solution, finite) -> Solution:
         pose_error=pick(sol.pose_error, 0),
         status=pick(sol.status, Status.NOT_FINITE),
         accepted=sol.accepted & finite,
-        triplet=pick(sol.triplet, 0),
+        triplet=jnp.where(finite, sol.triplet, jnp.arange(3, dtype=sol.triplet.dtype)),
     )
 
 
 def _initial(obs: Observations, options: Options):
-    """Step 1: the triplets used (rows of `triplet_indices(n, max_triplets)`) and their
-    best three-point roots (no gradient)."""
+    """Step 1: the triplets of `select_triplets` and their best three-point roots (no
+    gradient)."""
     sobs = jax.lax.stop_gradient(obs)
-    rows, triplets = select_triplets(sobs, options)
-    return rows, initial_poses(sobs, options=options, triplets=triplets)
+    _, triplets = select_triplets(sobs, options)
+    return initial_poses(sobs, options=options, triplets=triplets)
 
 
 def _per_triplet(sobs: Observations, initial, options: Options):
@@ -280,7 +281,7 @@ def _per_triplet(sobs: Observations, initial, options: Options):
     return out.pose, error, status
 
 
-def _finish(method, obs: Observations, rows, poses: Pose, error, status) -> Solution:
+def _finish(method, obs: Observations, triplets, poses: Pose, error, status) -> Solution:
     """The answer from every triplet's outcome: the best accepted, polished (with the
     implicit derivative attached) for the optimising methods."""
     dtype = obs.camera.dtype
@@ -299,14 +300,14 @@ def _finish(method, obs: Observations, rows, poses: Pose, error, status) -> Solu
         pose_error=pose_error(obs.camera, pose.R, pose.t, obs.model, obs.image, obs.mask),
         status=status[index].astype(jnp.int32),
         accepted=accepted,
-        triplet=rows[index].astype(jnp.int32),
+        triplet=triplets[index].astype(jnp.int32),
     )
 
 
 def _finish_answer(obs: Observations, found: Answer) -> Solution:
     """`_finish` for a problem whose answer is already chosen (`jaxpose.strategy.answer`)."""
     pose = Pose(found.pose.R[None], found.pose.t[None])
-    return _finish("mixed", obs, found.row[None], pose, found.error[None], found.status[None])
+    return _finish("mixed", obs, found.triplet[None], pose, found.error[None], found.status[None])
 
 
 def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):

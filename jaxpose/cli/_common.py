@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 __all__ = ["CliError", "new_console", "setup_jax"]
 
@@ -21,16 +20,22 @@ def new_console():
 
 
 def setup_jax(x64: bool = True) -> None:
-    """Configure JAX for this process: float64 when `x64`, and the persistent cache."""
+    """Configure JAX for this process: float64 when `x64`, and JAX's persistent
+    compilation cache in `cache_dir()/xla` (`$JAXPOSE_CACHE_DIR` moves it or turns it
+    off), unless the user configured one already."""
     import jax
+
+    from ..api._programs import cache_dir
 
     # The command line owns its process: float64 (OpenCV-level accuracy) unless asked not
     # to, and JAX's persistent compilation cache so that a second run starts fast.
     jax.config.update("jax_enable_x64", x64)
-    cache = Path.home() / ".cache" / "jaxpose" / "xla"
+    root = cache_dir()
+    if root is None or getattr(jax.config, "jax_compilation_cache_dir", None):
+        return
     try:
-        cache.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(cache))
+        (root / "xla").mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(root / "xla"))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     except OSError:  # pragma: no cover - read-only home
         pass

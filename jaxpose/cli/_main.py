@@ -15,6 +15,7 @@ from ._point import cmd_point
 from ._recording import add_recording_options
 from ._reproduce import cmd_reproduce
 from ._solve import cmd_solve
+from ._warmup import cmd_warmup
 
 __all__ = ["build_parser", "main"]
 
@@ -114,6 +115,31 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_recording_options(pt)
     pt.set_defaults(func=cmd_point)
+    w = sub.add_parser(
+        "warmup",
+        help="compile solve_pnp's programs ahead of time, into the program cache",
+        description="Build the compiled programs of solve_pnp (and of solve_pnp_batch for "
+        "the --batch chunk sizes) for the point buckets holding --points, and keep them in "
+        "the program cache ($JAXPOSE_CACHE_DIR, else ~/.cache/jaxpose), so that a new "
+        "process loads them instead of compiling. Programs already there are only loaded.",
+    )
+    w.add_argument(
+        "--points",
+        type=int,
+        nargs="+",
+        default=[8, 16, 32, 64],
+        metavar="N",
+        help="point counts whose buckets are built (default 8 16 32 64: every n up to 64)",
+    )
+    w.add_argument(
+        "--batch",
+        type=int,
+        nargs="*",
+        default=[],
+        metavar="B",
+        help="solve_pnp_batch chunk sizes to build too (default none)",
+    )
+    w.set_defaults(func=cmd_warmup)
     return parser
 
 

@@ -131,7 +131,7 @@ def cmd_solve(args) -> int:
         _, R_wc, t_wc, _ = (np.asarray(a) for a in decompose_camera(problem.camera))
     R_cam, t_cam = R_wc @ R, R_wc @ t + t_wc
     rvec_cam = np.asarray(matrix_to_rotvec(R_cam))
-    ijk = [int(i) for i in triplets[int(sol.triplet)]]
+    ijk = [int(i) for i in np.asarray(sol.triplet)]
 
     def vec(v) -> str:
         return "[" + ", ".join(f"{x: .6g}" for x in np.ravel(v)) + "]"
@@ -154,7 +154,7 @@ def cmd_solve(args) -> int:
         table.add_row("R (model to world)" if i == 0 else "", vec(R[i]))
     table.add_row("t (model to world)", vec(t))
     table.add_row("camera frame rvec, tvec", f"{vec(rvec_cam)}, {vec(t_cam)}")
-    table.add_row("from triplet", f"{int(sol.triplet)} (matches {ijk[0]}, {ijk[1]}, {ijk[2]})")
+    table.add_row("from triplet", f"matches {ijk[0]}, {ijk[1]}, {ijk[2]}")
     table.add_row("method", f"{args.method}, solved in {elapsed:.2f} s (compilation included)")
     console.print(table)
     if args.out:

@@ -1,32 +1,40 @@
-"""The answer alone: score every root of every triplet, refine the best few.
+"""The answer alone: score every root of a few well-spread triplets, refine the best few.
 
 `solve` and its batched forms ask for one pose per problem, not for every triplet's
 outcome. The mixed algorithm (`jaxpose.strategy._mixed`) runs the linear method from
 every triplet and Levenberg-Marquardt wherever it fails; to find the answer it is enough
 to
 
-1. solve every selected triplet by the three-point method (up to four roots each) and
-   score every root by its Eq. 8 error over all matches (cheap: one projection of the
-   matches per root);
-2. run the linear method (Gauss-Newton on Eq. 8) from the `refine` best roots;
-3. accept as the mixed algorithm does: converged, with an error below the threshold
+1. choose the triplets: those of the `Options.spread_points` matches farthest apart in
+   the image (`spread_matches`, farthest-point sampling: `C(k, 3)` triplets, 20 for
+   `k = 6`; no `C(n, 3)` areas built or sorted), or, with `spread_points=None` or a
+   `triplet_budget`, those of `select_triplets`;
+2. solve them by the three-point method (up to four roots each) and score every root by
+   its Eq. 8 error over all matches (one projection of the matches per root);
+3. run the linear method (Gauss-Newton on Eq. 8) from the `refine` best *distinct* roots
+   (`distinct_best`: a root within `DISTINCT_ANGLE` of one already chosen is the same
+   start, many triplets give it);
+4. accept as the mixed algorithm does: converged, with an error below the threshold
    (`Options.threshold`, or the adaptive one: within `rel_threshold` of the best
    converged error, never below the rounding level of exact data); the answer is the
-   accepted pose of lowest error, from the triplet its root came from;
-4. for a coplanar model, also refine the answer's planar-ambiguity partner and keep it
+   accepted pose of lowest error;
+5. for a coplanar model, also refine the answer's planar-ambiguity partner and keep it
    when it converges to a lower error (as the mixed algorithm does).
 
 A problem where none of the refined roots is accepted falls back to the whole mixed
-algorithm (`fallback` below; every triplet, Levenberg-Marquardt, the retries). On the
-noisy bench and the accuracy protocol's problems the best-scored roots lie in the basin
-of the optimum, so the fallback is rare; its cost is paid only where it runs (a batch
-gathers the problems that need it, `jaxpose.api` does).
+algorithm (every triplet of `select_triplets`, Levenberg-Marquardt, the retries). On
+noisy problems the best-scored roots lie in the basin of the optimum, so the fallback is
+rare; its cost is paid only where it runs (`answer_batch` gathers the problems that need
+it).
 
-Everything here is for one problem and fixed in shape; batches `vmap` it.
+Steps 1-5 are batch-first kernels in component form (`jaxpose.solvers._kernel_p3p`,
+`_kernel_linear`) over a leading problem axis, in blocks of problems sized for the cache
+(`block_size`).
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -34,31 +42,63 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry._pose import Observations, Pose
-from ..solvers._components import mat_from_array, vec_from_array
-from ..solvers._kernel_linear import matches_from_observations, pixel_error_kernel
-from ..solvers._linear import linear
+from ..solvers._components import (
+    Mat3,
+    Vec3,
+    mat_to_array,
+    transpose_matvec,
+    vec_to_array,
+)
+from ..solvers._kernel_linear import (
+    Matches,
+    in_chunks,
+    linear_kernel,
+    matches_from_observations,
+    pixel_error_kernel,
+)
+from ..solvers._kernel_p3p import degeneracy, p3p_components
 from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
 from ._mixed import _planar_partner, mixed_from_initial, mixed_from_initial_batch
 from ._options import Options
-from ._triplets import best_triplet, initial_poses, select_triplets, triplet_roots
+from ._triplets import best_triplet, initial_poses, select_triplets, triplet_indices
 
-__all__ = ["Answer", "Best", "answer", "answer_batch", "best_of_roots"]
+__all__ = [
+    "DISTINCT_ANGLE",
+    "Answer",
+    "Best",
+    "answer",
+    "answer_batch",
+    "answer_triplets",
+    "best_of_roots",
+    "best_of_roots_batch",
+    "distinct_best",
+    "spread_matches",
+]
+
+#: Two roots whose rotations differ by less than this angle (rad) are one start.
+DISTINCT_ANGLE = 0.1
+
+# Triplets per block of problems of the kernels (a block's roots, scores and linear runs
+# stay in the processor's cache).
+BLOCK_TRIPLETS = 2048
 
 
 class Best(NamedTuple):
-    """The answer of one problem from its best-scored roots.
+    """The answer of each problem from its best-scored roots (leading problem axis `B`,
+    or none for one problem).
 
-    **Fields:** `pose`; `error` (Eq. 8, px); `status` (`ACCEPTED_LINEAR` when accepted,
-    else the reason the best candidate failed); `triplet` (the position, in the triplets
-    given, of the triplet whose root led to the answer); `accepted`.
+    **Fields:** `pose`; `error` (Eq. 8, px; the largest float when not accepted);
+    `status` (`ACCEPTED_LINEAR` when accepted, else the reason the best candidate
+    failed); `triplet` (the three matches of the triplet whose root led to the answer);
+    `accepted`.
     """
 
     pose: Pose
-    error: Float[Array, ""]
-    status: Int[Array, ""]
-    triplet: Int[Array, ""]
-    accepted: Bool[Array, ""]
+    error: Float[Array, "*B"]
+    status: Int[Array, "*B"]
+    triplet: Int[Array, "*B 3"]
+    accepted: Bool[Array, "*B"]
 
 
 def refine_count(options: Options, roots: int) -> int:
@@ -67,123 +107,273 @@ def refine_count(options: Options, roots: int) -> int:
     return max(1, min(4 if options.refine is None else options.refine, roots))
 
 
-def best_of_roots(obs: Observations, triplets: Int[ArrayLike, "T 3"], options: Options) -> Best:
-    """Steps 1-4 of the module docstring for one problem (no fallback).
+def spread_matches(
+    image: Float[ArrayLike, "B n 2"], mask: Bool[ArrayLike, "B n"], k: int
+) -> Int[Array, "B k"]:
+    """The `k` used matches of each problem farthest apart in the image: the one farthest
+    from the centroid of the used pixels, then, `k - 1` times, the one farthest from those
+    already chosen (farthest-point sampling; `O(n k)`). With fewer than `k` used matches,
+    some are chosen twice (their triplets are then degenerate and give no root)."""
+    image, mask = jnp.asarray(image), jnp.asarray(mask)
+    u, v = image[..., 0], image[..., 1]
+    w = mask.astype(image.dtype)
+    count = jnp.maximum(jnp.sum(w, axis=-1, keepdims=True), 1)
+    cu = jnp.sum(u * w, axis=-1, keepdims=True) / count
+    cv = jnp.sum(v * w, axis=-1, keepdims=True) / count
+    gap = (u - cu) ** 2 + (v - cv) ** 2
+    chosen = []
+    for j in range(k):
+        pick = jnp.argmax(jnp.where(mask, gap, -1), axis=-1)
+        chosen.append(pick)
+        pu = jnp.take_along_axis(u, pick[:, None], axis=-1)
+        pv = jnp.take_along_axis(v, pick[:, None], axis=-1)
+        away = (u - pu) ** 2 + (v - pv) ** 2
+        gap = away if j == 0 else jnp.minimum(gap, away)
+    return jnp.stack(chosen, axis=-1).astype(jnp.int32)
 
-    **Arguments:** `obs` (one problem, without gradient: the answer's derivative is
-    attached afterwards by `jaxpose.strategy._implicit.polish`); `triplets` `(T, 3)`;
-    `options` (read: `min_area`, `collinear_tol`, `linear_iterations`, `threshold`,
-    `rel_threshold`, `planar_partner`, `refine`).
-    """
+
+def answer_triplets(obs: Observations, options: Options) -> Int[Array, "B T 3"]:
+    """Step 1 for a batch of problems (`obs` with a leading `B` axis): the triplets of
+    `spread_matches` (all `C(n, 3)` when `n <= spread_points`), or, with
+    `spread_points=None` or a `triplet_budget`, those of `select_triplets`."""
+    B, n = obs.mask.shape
+    k = options.spread_points
+    if k is None or options.triplet_budget is not None:
+        _, triplets = jax.vmap(lambda o: select_triplets(o, options))(obs)
+        return jnp.broadcast_to(jnp.asarray(triplets, jnp.int32), (B, *triplets.shape[-2:]))
+    if n <= k:
+        return jnp.broadcast_to(jnp.asarray(triplet_indices(n)), (B, math.comb(n, 3), 3))
+    chosen = spread_matches(obs.image, obs.mask, k)
+    return chosen[:, triplet_indices(k)]
+
+
+def _gather(a: Array, index: Array) -> Array:
+    """`a[b, index[b, ...]]` along the second axis."""
+    flat = index.reshape(index.shape[0], -1)
+    return jnp.take_along_axis(a, flat, axis=1).reshape(index.shape)
+
+
+def _roots(obs: Observations, m: Matches, triplets: Int[Array, "B T 3"], options: Options):
+    """Every root of every triplet, as `Mat3` / `Vec3` of `(B, 4 T)` and a validity mask:
+    the three-point kernel on the world bearings of the matches (`frame^T (x, y, 1)` from
+    the camera centre `-frame^T offset`), with `three_point`'s degeneracy tests and the
+    near-real roots (a double root that noise made complex)."""
+    B, T = triplets.shape[:2]
+    one = jnp.ones_like(m.x)
+    f = transpose_matvec(Mat3(*(a[:, None] for a in m.frame)), Vec3(m.x, m.y, one))
+    centre = transpose_matvec(m.frame, m.offset)
+    model = Vec3(obs.model[..., 0], obs.model[..., 1], obs.model[..., 2])
+    p0, p1, p2 = (triplets[..., i] for i in range(3))
+
+    def vecs(v: Vec3) -> tuple[Vec3, Vec3, Vec3]:
+        one, two, three = (Vec3(*(_gather(a, p) for a in v)) for p in (p0, p1, p2))
+        return one, two, three
+
+    def scalars(a: Array):
+        return _gather(a, p0), _gather(a, p1), _gather(a, p2)
+
+    bearings, points = vecs(f), vecs(model)
+    u, v = scalars(obs.image[..., 0]), scalars(obs.image[..., 1])
+    c = p3p_components(bearings, points)
+    bad_image, bad_model = degeneracy(u, v, points, options.min_area, options.collinear_tol)
+    m0, m1, m2 = scalars(obs.mask)
+    used = m0 & m1 & m2
+    ok = used & ~bad_image & ~bad_model
+    valid = (c.real | c.near) & c.positive & ok[..., None]
+    t = Vec3(*(a - o[:, None, None] for a, o in zip(c.t, centre, strict=True)))
+
+    def flat(a):
+        return a.reshape(B, 4 * T)
+
+    return Mat3(*map(flat, c.R)), Vec3(*map(flat, t)), flat(valid)
+
+
+def distinct_best(
+    score: Float[Array, "B C"], R: Mat3, K: int, angle: float = DISTINCT_ANGLE
+) -> tuple[Int[Array, "B K"], Bool[Array, "B K"]]:
+    """The `K` lowest-scored candidates of each problem, each more than `angle` (rad)
+    from those chosen before it (greedy). Returns `(index, found)`: a slot with no
+    candidate left repeats the last one, `found` False."""
+    big = jnp.finfo(score.dtype).max
+    near = 1 + 2 * math.cos(angle)  # trace(Ra^T Rb) above this: closer than `angle`
+    picks, found = [], []
+    for _ in range(K):
+        i = jnp.argmin(score, axis=-1)
+        picks.append(i)
+        found.append(jnp.take_along_axis(score, i[:, None], axis=-1)[:, 0] < big)
+        Ri = Mat3(*(jnp.take_along_axis(a, i[:, None], axis=-1) for a in R))
+        # trace(Ri^T R): the sum of the products of corresponding entries
+        cos_sum = sum(a * b for a, b in zip(Ri, R, strict=True))
+        score = jnp.where(cos_sum > near, big, score)
+    return jnp.stack(picks, axis=-1), jnp.stack(found, axis=-1)
+
+
+def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Options) -> Best:
+    """Steps 2-5 for a block of problems."""
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
-    triplets = jnp.asarray(triplets, jnp.int32)
-    T = triplets.shape[0]
+    m = matches_from_observations(obs)
+    lifted = jax.tree.map(lambda a: a[:, None], m)
 
-    # 1. every root of every triplet, scored over all matches
-    roots = jax.vmap(lambda ijk: triplet_roots(obs, ijk, options))(triplets)
-    valid = roots.valid & jnp.all(obs.mask[triplets], axis=1)[:, None]  # (T, 4)
-    R, t = roots.R.reshape(4 * T, 3, 3), roots.t.reshape(4 * T, 3)
-    matches = matches_from_observations(jax.tree.map(lambda x: x[None], obs))
-    score = pixel_error_kernel(mat_from_array(R), vec_from_array(t), matches)
-    score = jnp.where(valid.reshape(-1) & jnp.isfinite(score), score, big)
+    # 2. every root, scored over all matches
+    R, t, valid = _roots(obs, m, triplets, options)
+    score = pixel_error_kernel(R, t, lifted)
+    score = jnp.where(valid & jnp.isfinite(score), score, big)
 
-    # 2. the linear method from the best few
-    K = refine_count(options, 4 * T)
-    _, pick = jax.lax.top_k(-score, K)
-    started = score[pick] < big
-    iterations = options.linear_iterations
-    lin = jax.vmap(lambda R, t: linear(obs, Pose(R, t), iterations=iterations))(R[pick], t[pick])
-    converged = started & (lin.status == Status.OK)
-    error = jnp.where(converged, lin.error, big)
+    # 3. the linear method from the best distinct few
+    K = refine_count(options, score.shape[1])
+    pick, started = distinct_best(score, R, K)
+    R0 = Mat3(*(jnp.take_along_axis(a, pick, axis=-1) for a in R))
+    t0 = Vec3(*(jnp.take_along_axis(a, pick, axis=-1) for a in t))
+    R1, t1, lin_error, _, lin_status = linear_kernel(
+        R0, t0, lifted, iterations=options.linear_iterations
+    )
+    converged = started & (lin_status == Status.OK)
+    error = jnp.where(converged, lin_error, big)
 
-    # 3. acceptance, as the mixed algorithm's
-    best = jnp.min(error)
+    # 4. acceptance, as the mixed algorithm's
+    best = jnp.min(error, axis=-1)
     if options.threshold is None:
-        floor = rounding_level(obs)
+        floor = jax.vmap(rounding_level)(obs)
         thr = jnp.where(best < big, jnp.maximum(best * (1 + options.rel_threshold), floor), big)
     else:
-        thr = jnp.asarray(options.threshold, dtype)
-    k = jnp.argmin(error)
-    accepted = converged[k] & (error[k] < thr)
-    pose = Pose(lin.pose.R[k], lin.pose.t[k])
-    error = lin.error[k]
+        thr = jnp.full_like(best, options.threshold)
+    k = jnp.argmin(error, axis=-1)[:, None]
+    accepted = jnp.take_along_axis(converged, k, axis=-1)[:, 0] & (best < thr)
+    R1 = Mat3(*(jnp.take_along_axis(a, k, axis=-1)[:, 0] for a in R1))
+    t1 = Vec3(*(jnp.take_along_axis(a, k, axis=-1)[:, 0] for a in t1))
+    error = jnp.take_along_axis(lin_error, k, axis=-1)[:, 0]
+    pose = Pose(mat_to_array(R1), vec_to_array(t1))
 
-    # 4. the planar partner of the answer
+    # 5. the planar partner of the answer
     if options.planar_partner:
-        partner, flat = _planar_partner(obs, pose)
-        other = linear(obs, partner, iterations=iterations)
-        better = flat & accepted & (other.status == Status.OK) & (other.error < error)
-        pose = jax.tree.map(lambda a, b: jnp.where(better, a, b), other.pose, pose)
-        error = jnp.where(better, other.error, error)
+        partner, flat = jax.vmap(_planar_partner)(obs, pose)
+        Rp, tp, other, _, status_p = linear_kernel(
+            Mat3(*(partner.R[..., i, j] for i in range(3) for j in range(3))),
+            Vec3(*(partner.t[..., i] for i in range(3))),
+            m,
+            iterations=options.linear_iterations,
+        )
+        better = flat & accepted & (status_p == Status.OK) & (other < error)
+        pose = Pose(
+            jnp.where(better[:, None, None], mat_to_array(Rp), pose.R),
+            jnp.where(better[:, None], vec_to_array(tp), pose.t),
+        )
+        error = jnp.where(better, other, error)
 
-    first = jnp.where(started[0], lin.status[0], Status.NO_SOLUTION)
+    first = jnp.where(started[:, 0], lin_status[:, 0], Status.NO_SOLUTION)
+    converged_k = jnp.take_along_axis(converged, k, axis=-1)[:, 0]
     status = jnp.where(
-        accepted, Status.ACCEPTED_LINEAR, jnp.where(converged[k], Status.REJECTED, first)
+        accepted, Status.ACCEPTED_LINEAR, jnp.where(converged_k, Status.REJECTED, first)
     )
+    root = jnp.take_along_axis(pick, k, axis=-1)[:, 0]
+    triplet = jnp.take_along_axis(triplets, (root // 4)[:, None, None], axis=1)[:, 0]
     return Best(
         pose=pose,
         error=jnp.where(accepted, error, big),
         status=status.astype(jnp.int32),
-        triplet=(pick[k] // 4).astype(jnp.int32),
+        triplet=triplet.astype(jnp.int32),
         accepted=accepted,
     )
 
 
+def block_size(triplets: int) -> int:
+    """Problems per block of `best_of_roots_batch`: about `BLOCK_TRIPLETS` triplets."""
+    return max(1, BLOCK_TRIPLETS // max(triplets, 1))
+
+
+def best_of_roots_batch(
+    obs: Observations, triplets: Int[ArrayLike, "B T 3"], options: Options
+) -> Best:
+    """Steps 2-5 of the module docstring for a batch of problems (no fallback), in blocks
+    of `block_size(T)` problems.
+
+    **Arguments:** `obs` (a leading `B` axis; without gradient: the answer's derivative
+    is attached afterwards by `jaxpose.strategy._implicit.polish`); `triplets`
+    `(B, T, 3)`; `options` (read: `min_area`, `collinear_tol`, `linear_iterations`,
+    `threshold`, `rel_threshold`, `planar_partner`, `refine`).
+    """
+    triplets = jnp.asarray(triplets, jnp.int32)
+    return in_chunks(
+        lambda o, tr: _best_block(o, tr, options),
+        obs,
+        triplets,
+        size=block_size(triplets.shape[1]),
+    )
+
+
+def best_of_roots(obs: Observations, triplets: Int[ArrayLike, "T 3"], options: Options) -> Best:
+    """`best_of_roots_batch` for one problem (`triplets` `(T, 3)`)."""
+    one = jax.tree.map(lambda a: jnp.asarray(a)[None], obs)
+    best = best_of_roots_batch(one, jnp.asarray(triplets)[None], options)
+    return jax.tree.map(lambda a: a[0], best)
+
+
 class Answer(NamedTuple):
-    """One problem's answer before its derivative is attached: `row` (the triplet's row
-    in `triplet_indices(n, max_triplets)`), `pose`, `error`, `status`."""
+    """One problem's answer before its derivative is attached: `triplet` (the three
+    matches its start came from), `pose`, `error`, `status`."""
 
-    row: Int[Array, ""]
+    triplet: Int[Array, "*B 3"]
     pose: Pose
-    error: Float[Array, ""]
-    status: Int[Array, ""]
+    error: Float[Array, "*B"]
+    status: Int[Array, "*B"]
 
 
-def _exhaustive(obs: Observations, rows, triplets, options: Options) -> Answer:
-    """The whole mixed algorithm over every triplet, reduced to its answer."""
+def _exhaustive(obs: Observations, options: Options) -> Answer:
+    """The whole mixed algorithm over the triplets of `select_triplets`, reduced to its
+    answer."""
+    _, triplets = select_triplets(obs, options)
     initial = initial_poses(obs, options=options, triplets=triplets)
     res = mixed_from_initial(obs, initial, options=options)
     index, _ = best_triplet(res.error, res.status)
     pose = Pose(res.pose.R[index], res.pose.t[index])
-    return Answer(rows[index], pose, res.error[index], res.status[index])
+    return Answer(initial.triplets[index], pose, res.error[index], res.status[index])
+
+
+def _quick(best: Best) -> Answer:
+    return Answer(best.triplet, best.pose, best.error, best.status)
 
 
 def answer(obs: Observations, options: Options) -> Answer:
     """The answer of one problem: `best_of_roots`, else (none accepted) the whole mixed
     algorithm. Under `vmap` both branches run for every problem: batches use
-    `answer_batch`, which runs the fallback only for the problems that need it."""
-    rows, triplets = select_triplets(obs, options)
-    rows = jnp.asarray(rows, jnp.int32)
-    best = best_of_roots(obs, triplets, options)
-    quick = Answer(rows[best.triplet], best.pose, best.error, best.status)
+    `answer_batch`, which runs the fallback only for the problems that need it.
+    `options.fallback=False`: `best_of_roots` alone (a caller outside `jit` can run the
+    whole algorithm itself where it is needed, and compile it only then)."""
+    one = jax.tree.map(lambda a: jnp.asarray(a)[None], obs)
+    best = best_of_roots_batch(one, answer_triplets(one, options), options)
+    best = jax.tree.map(lambda a: a[0], best)
+    if not options.fallback:
+        return _quick(best)
     return jax.lax.cond(
         best.accepted,
-        lambda: quick,
-        lambda: _exhaustive(obs, rows, triplets, options),
+        lambda: _quick(best),
+        lambda: _exhaustive(obs, options),
     )
 
 
-def fallback_slots(B: int) -> int:
-    """Problems per pass of the batch fallback: about one in sixteen, at least one."""
-    return max(1, min(B, -(-B // 16)))
+def fallback_slots(B: int, triplets: int = 1) -> int:
+    """Problems per pass of the batch fallback: about one in sixteen, at least one, and
+    at most about 8,192 triplets' worth (bounded memory whatever `B`)."""
+    return max(1, min(B, -(-B // 16), max(1, 8192 // max(triplets, 1))))
 
 
 def answer_batch(obs: Observations, options: Options) -> Answer:
     """`answer` for a batch of problems (`obs` with a leading `B` axis).
 
-    `best_of_roots` runs for every problem; those with no accepted root are gathered,
-    `fallback_slots(B)` at a time, into the whole mixed algorithm (one batch of it per
-    pass, `mixed_from_initial_batch`), until none is left: the fallback costs what the
-    problems that need it cost, not the batch size."""
-    B = obs.model.shape[0]
-    rows, triplets = jax.vmap(lambda o: select_triplets(o, options))(obs)
-    rows = jnp.broadcast_to(jnp.asarray(rows, jnp.int32), triplets.shape[:2])
+    `best_of_roots_batch` runs for every problem; those with no accepted root are
+    gathered, `fallback_slots(B, T)` at a time, into the whole mixed algorithm (one batch
+    of it per pass, `mixed_from_initial_batch`), until none is left: the fallback costs
+    what the problems that need it cost, not the batch size. `options.fallback=False`:
+    `best_of_roots_batch` alone (as in `answer`)."""
+    B = obs.mask.shape[0]
+    best = best_of_roots_batch(obs, answer_triplets(obs, options), options)
+    start = _quick(best)
+    if not options.fallback:
+        return start
+    _, triplets = jax.vmap(lambda o: select_triplets(o, options))(obs)
     triplets = jnp.broadcast_to(jnp.asarray(triplets, jnp.int32), (B, *triplets.shape[-2:]))
-    best = jax.vmap(lambda o, tr: best_of_roots(o, tr, options))(obs, triplets)
-    rows_best = jnp.take_along_axis(rows, best.triplet[:, None], axis=1)[:, 0]
-    start = Answer(rows_best, best.pose, best.error, best.status)
-    F = fallback_slots(B)
+    F = fallback_slots(B, triplets.shape[1])
 
     def pending(carry):
         need, _ = carry
@@ -199,11 +389,12 @@ def answer_batch(obs: Observations, options: Options) -> Answer:
         )
         res = mixed_from_initial_batch(sub, initial, options=options)
         index, _ = jax.vmap(best_triplet)(res.error, res.status)
+        rows = jnp.arange(F)
         found = Answer(
-            jnp.take_along_axis(rows[idx], index[:, None], axis=1)[:, 0],
-            Pose(res.pose.R[jnp.arange(F), index], res.pose.t[jnp.arange(F), index]),
-            jnp.take_along_axis(res.error, index[:, None], axis=1)[:, 0],
-            jnp.take_along_axis(res.status, index[:, None], axis=1)[:, 0],
+            initial.triplets[rows, index],
+            Pose(res.pose.R[rows, index], res.pose.t[rows, index]),
+            res.error[rows, index],
+            res.status[rows, index],
         )
 
         def scatter(old, new):

@@ -67,15 +67,30 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry._numerics import masked_centroid
-from ..geometry._pose import Observations, Pose, transform
+from ..geometry._pose import Observations, Pose
 from ..geometry._rotation import rotvec_to_matrix
-from ..solvers._linear import LinearResult, linear
+from ..solvers._components import (
+    Mat3,
+    Vec3,
+    mat_from_array,
+    mat_to_array,
+    vec_from_array,
+    vec_to_array,
+)
+from ..solvers._kernel_linear import (
+    Matches,
+    in_chunks,
+    linear_kernel,
+    matches_from_observations,
+    pixel_error_kernel,
+)
+from ..solvers._linear import LinearResult
 from ..solvers._nonlinear import nonlinear
-from ..solvers._residuals import in_front, rounding_level
+from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
-from ._jobs import Jobs, default_chunk, pass_size, ranked, run_jobs
+from ._jobs import Jobs, default_chunk, ranked, run_jobs
 from ._options import Options, resolve
-from ._triplets import Initial, best_triplet, initial_poses, pose_errors
+from ._triplets import Initial, best_triplet, initial_poses
 
 __all__ = [
     "MixedResult",
@@ -119,6 +134,10 @@ FLAT_TOL = 1e-2
 
 # `MixedResult.root` of a pose that came from the planar partner start.
 PARTNER_ROOT = 4
+
+# Linear runs per pass of step 2 (`linear_all`): the kernel's intermediates stay in the
+# cache.
+LINEAR_PASS = 4096
 
 # Levenberg-Marquardt's iteration budget in the retries (second chance, planar partner),
 # in units of `max_steps`.
@@ -214,27 +233,49 @@ class _Layout(NamedTuple):
     partner: int
 
 
+def _linear_block(R: Mat3, t: Vec3, matches: Matches, iterations: int) -> LinearResult:
+    """`linear_kernel` from poses of batch shape `S` against `matches` broadcast to it,
+    as a `LinearResult` of arrays (`pose.R` `S + (3, 3)`)."""
+    R, t, error, step, status = linear_kernel(R, t, matches, iterations)
+    return LinearResult(Pose(mat_to_array(R), vec_to_array(t)), error, step, status)
+
+
 def linear_all(obs: Observations, poses: Pose, iterations: int) -> LinearResult:
-    """Step 2: the linear method from every triplet's pose of every problem (`(B, T)`), in
-    cache-sized passes: whole problems at a time, or, for a problem with more triplets
-    than a pass, its triplets in passes."""
+    """Step 2: the linear method from every triplet's pose of every problem (`(B, T)`),
+    the values of `linear(obs[b], poses[b, k], iterations=iterations)` computed by the
+    batch-first kernel (`linear_kernel`), in cache-sized passes of about `LINEAR_PASS`
+    runs: whole problems at a time, or, for a problem with more triplets than a pass, its
+    triplets in passes."""
     B, T = poses.t.shape[:2]
+    matches = matches_from_observations(jax.tree.map(lambda x: x[:, None], obs))  # (B, 1)
+    R, t = mat_from_array(poses.R), vec_from_array(poses.t)  # (B, T)
 
-    def run_linear(o, pose):
-        return linear(o, pose, iterations=iterations)
+    def run(R, t, m):
+        return _linear_block(R, t, m, iterations)
 
-    if T <= pass_size(T):
-        return jax.lax.map(
-            lambda a: jax.vmap(run_linear, in_axes=(None, 0))(*a),
-            (obs, poses),
-            batch_size=max(1, pass_size(B * T) // T),
-        )
+    if T <= LINEAR_PASS:
+        return in_chunks(run, R, t, matches, size=max(1, LINEAR_PASS // max(T, 1)))
+    size = -(-T // -(-T // LINEAR_PASS))  # near-equal passes
 
     def one_problem(a):
-        o, problem_poses = a
-        return jax.lax.map(lambda p: run_linear(o, p), problem_poses, batch_size=pass_size(T))
+        R, t, m = a
+        m = jax.tree.map(lambda x: x[0], m)  # (1,): broadcast to the triplets
+        return in_chunks(lambda R, t: run(R, t, m), R, t, size=size)
 
-    return jax.lax.map(one_problem, (obs, poses))
+    return jax.lax.map(one_problem, (R, t, matches))
+
+
+def _ranked_batch(need: Bool[Array, "B T"], priority: Float[Array, "B T"], budget: int | None):
+    """`ranked` of every problem (`(B, T)`). Where every problem needs at most `budget`
+    elements, all of finite priority below the largest float, `ranked` keeps them all: the
+    ranking (a sort) runs only when some problem needs more."""
+    if budget is None or budget >= need.shape[1]:
+        return need
+    big = jnp.finfo(priority.dtype).max
+    over = jnp.any(jnp.sum(need, axis=1) > budget) | jnp.any(need & ~(priority < big))
+    return jax.lax.cond(
+        over, lambda: jax.vmap(ranked, in_axes=(0, 0, None))(need, priority, budget), lambda: need
+    )
 
 
 def thresholds(obs: Observations, lin: LinearResult, lin_ok, options: Options):
@@ -257,14 +298,14 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     status)`."""
     o = jax.tree.map(lambda x: x[problem], obs)
     th = thr[problem]
-    res = linear(o, start, iterations=iterations)
+    m = matches_from_observations(o)
+    res = _linear_block(mat_from_array(start.R), vec_from_array(start.t), m, iterations)
+    start_error = pixel_error_kernel(mat_from_array(start.R), vec_from_array(start.t), m)
+    better = (res.error < start_error) & (res.status != Status.NOT_FINITE)
     accepted = (res.status == Status.OK) & (res.error < th)
-    better = (res.error < pose_errors(Pose(start.R[None], start.t[None]), o)[0]) & (
-        res.status != Status.NOT_FINITE
-    )
     lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
     nl = nonlinear(o, lm_start, max_steps=lm_bound, step_limit=steps)
-    again = linear(o, nl.pose, iterations=iterations)
+    again = _linear_block(mat_from_array(nl.pose.R), vec_from_array(nl.pose.t), m, iterations)
     lm_ok = nl.status == Status.OK
     # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
     # converged (stationary) pose stands: Gauss-Newton can be repelled from an optimum
@@ -326,7 +367,7 @@ def after_step3(
     error = jnp.where(need3, error3, given.lin.error)
     if N1:
         failed = need3 & ~Status.is_success(status)
-        failed = jax.vmap(ranked, in_axes=(0, 0, None))(failed, error, budget)
+        failed = _ranked_batch(failed, error, budget)
         stalled = failed & (status == Status.NONLINEAR_NOT_CONVERGED) & (error < big)
         alt_need = jnp.concatenate(
             [failed[:, :, None] & (initial.alt_error < big), stalled[:, :, None]], axis=2
@@ -426,16 +467,33 @@ def _first_jobs(given: _Given, layout: _Layout, priority, fn, max_steps: int) ->
     )
 
 
+def _in_front_all(obs: Observations, pose: Pose) -> Bool[Array, "B T"]:
+    """`in_front(transform(pose[b, k], model[b]), obs[b])` of every pose, batch-first:
+    whether every used match lies at positive depth `c3 . (R m + t) + c34`."""
+    R, t = mat_from_array(pose.R), vec_from_array(pose.t)  # (B, T)
+    c = obs.camera[:, 2]  # (B, 4)
+    m = [obs.model[:, None, :, i] for i in range(3)]  # (B, 1, n)
+
+    def world(a, b, d, e):
+        return a[..., None] * m[0] + b[..., None] * m[1] + d[..., None] * m[2] + e[..., None]
+
+    X, Y, Z = (
+        world(R.xx, R.xy, R.xz, t.x),
+        world(R.yx, R.yy, R.yz, t.y),
+        world(R.zx, R.zy, R.zz, t.z),
+    )
+    depth = X * c[:, None, None, 0] + Y * c[:, None, None, 1] + Z * c[:, None, None, 2]
+    depth = depth + c[:, None, None, 3]
+    return jnp.all(jnp.where(obs.mask[:, None, :], depth > 0, True), axis=-1)
+
+
 def _settled(given: _Given, state: MixedState):
     """The final poses and errors: a triplet that was not accepted reports the better of
     its last pose and its three-point start, never a pose with points behind the camera."""
     obs, initial, usable = given.obs, given.initial, given.usable
     big = jnp.finfo(state.error.dtype).max
 
-    def front_of(o, pose):
-        return jax.vmap(lambda R, t: in_front(transform(Pose(R, t), o.model), o))(pose.R, pose.t)
-
-    front = jax.vmap(front_of)(obs, state.pose)
+    front = _in_front_all(obs, state.pose)
     keep = Status.is_success(state.status) | (front & (state.error <= initial.error))
     pose = jax.vmap(_where_pose)(keep & usable, state.pose, initial.pose)
     error = jnp.where(usable, jnp.where(keep, state.error, initial.error), big)
@@ -485,9 +543,7 @@ def mixed_from_initial_batch(
     )
     accepted2 = lin_ok & (lin.error < thr[:, None])
     priority = jnp.minimum(lin.error, initial.error)
-    need3 = jax.vmap(ranked, in_axes=(0, 0, None))(
-        usable & ~accepted2, priority, options.nonlinear_budget
-    )
+    need3 = _ranked_batch(usable & ~accepted2, priority, options.nonlinear_budget)
     given = _Given(obs, initial, lin, usable, accepted2, need3)
     fn = functools.partial(job, obs, thr, options.linear_iterations, lm_bound)
     jobs = _first_jobs(given, layout, priority, fn, options.max_steps)

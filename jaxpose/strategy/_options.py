@@ -125,6 +125,13 @@ class Options:
       mixed algorithm only for a problem where none of them is accepted
       (`jaxpose.strategy.best_of_roots`; default `4`); `None`: the whole mixed algorithm
       over every triplet for every problem.
+    - `spread_points`: the roots scored for `refine` are those of the `C(k, 3)` triplets
+      of the `k` matches farthest apart in the image (`jaxpose.strategy.spread_matches`;
+      default `6`: 20 triplets); `None`: the triplets `max_triplets` and
+      `triplet_budget` select (a `triplet_budget` takes precedence too).
+    - `fallback`: with `refine`, run the whole mixed algorithm for a problem none of
+      whose refined roots is accepted (default `True`); `False`: report it not accepted
+      (status of its best candidate) and run nothing more.
     - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
       `None`: a size that grows with the batch, see `mixed_from_initial_batch`).
     """
@@ -142,6 +149,8 @@ class Options:
     max_triplets: int | None = 2000
     triplet_budget: int | None = None
     refine: int | None = 4
+    spread_points: int | None = 6
+    fallback: bool = True
     chunk: int | None = None
 
     def __post_init__(self):
@@ -153,12 +162,14 @@ class Options:
         _check_int("linear_iterations", self.linear_iterations, 1)
         _check_int("nonlinear_budget", self.nonlinear_budget, 0, optional=True)
         _check_int("second_chance_budget", self.second_chance_budget, 0)
-        if not isinstance(self.planar_partner, (bool, np.bool_)):
-            raise ValueError(f"planar_partner must be a bool, got {self.planar_partner!r}")
+        for name in ("planar_partner", "fallback"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         _check_int("max_steps", self.max_steps, 1)
         _check_int("max_triplets", self.max_triplets, 1, optional=True)
         _check_int("triplet_budget", self.triplet_budget, 1, optional=True)
         _check_int("refine", self.refine, 1, optional=True)
+        _check_int("spread_points", self.spread_points, 3, optional=True)
         _check_int("chunk", self.chunk, 1, optional=True)
 
 

@@ -14,10 +14,17 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ..geometry._pose import Observations, Pose
+from ..solvers._components import mat_from_array, vec_from_array
+from ..solvers._kernel_linear import (
+    Matches,
+    in_chunks,
+    matches_from_observations,
+    pixel_error_kernel,
+)
+from ..solvers._kernel_p3p import three_point_batch
 from ..solvers._p3p import ThreePointResult, three_point
 from ..solvers._residuals import pose_error
 from ..solvers._status import Status
-from ._jobs import pass_size
 from ._options import Options, resolve
 
 __all__ = [
@@ -90,6 +97,11 @@ def triplet_count(n: int, options: Options) -> int:
     return T if options.triplet_budget is None else min(T, options.triplet_budget)
 
 
+# Triplets per pass of step 1 (`initial_poses`): the three-point kernel's stages and the
+# Eq. 8 error of the four roots of each over all matches stay in the cache.
+STEP1_PASS = 2048
+
+
 class Initial(NamedTuple):
     """Step 1 for every triplet: the best three-point root by Eq. 8 over all matches.
 
@@ -124,6 +136,55 @@ def triplet_roots(obs: Observations, ijk: Int[Array, " 3"], options) -> ThreePoi
     )
 
 
+def _stable_ranks(err: Float[Array, "T 4"]) -> list[Array]:
+    """The rank of each of the four slots in `jnp.argsort(err)` (stable: equal errors in
+    slot order), as four `(T,)` integer arrays: slot `i` comes before slot `j` when its
+    error is lower, or equal with `i < j`."""
+    e = [err[:, i] for i in range(4)]
+    ranks = []
+    for i in range(4):
+        before = [(e[j] <= e[i]) if j < i else (e[j] < e[i]) for j in range(4) if j != i]
+        ranks.append(sum(b.astype(jnp.int32) for b in before))
+    return ranks
+
+
+def _step1(obs: Observations, matches: Matches, idx: Int[Array, "T 3"], options: Options):
+    """Step 1 for the triplets `idx` of one problem, batch-first: the three-point kernel
+    on every triplet, every root scored by the Eq. 8 kernel, the roots ranked by error.
+    Returns the fields of `Initial` but `triplets`."""
+    dtype = obs.camera.dtype
+    big = jnp.finfo(dtype).max
+    sol = three_point_batch(
+        obs.camera,
+        obs.model[idx],
+        obs.image[idx],
+        min_area=options.min_area,
+        collinear_tol=options.collinear_tol,
+        approximate=True,
+    )
+    err = pixel_error_kernel(mat_from_array(sol.R), vec_from_array(sol.t), matches)  # (T, 4)
+    err = jnp.where(sol.valid & jnp.isfinite(err), err, big)
+    ranks = _stable_ranks(err)
+    # order[:, k]: the slot of rank k (`jnp.argsort(err)`)
+    order = jnp.stack(
+        [sum(jnp.where(r == k, i, 0) for i, r in enumerate(ranks)) for k in range(4)], axis=1
+    )
+    R = jnp.take_along_axis(sol.R, order[:, :, None, None], axis=1)
+    t = jnp.take_along_axis(sol.t, order[:, :, None], axis=1)
+    err = jnp.take_along_axis(err, order, axis=1)
+    used = jnp.all(obs.mask[idx], axis=1)
+    status = jnp.where(used, sol.status, Status.TOO_FEW_POINTS).astype(jnp.int32)
+    ok = status == Status.OK
+    alt_ok = ok[:, None] & (err[:, 1:] < big)
+    eye = jnp.eye(3, dtype=dtype)
+    pose = Pose(jnp.where(ok[:, None, None], R[:, 0], eye), jnp.where(ok[:, None], t[:, 0], 0))
+    alt = Pose(
+        jnp.where(alt_ok[:, :, None, None], R[:, 1:], eye),
+        jnp.where(alt_ok[:, :, None], t[:, 1:], 0),
+    )
+    return pose, jnp.where(ok, err[:, 0], big), status, alt, jnp.where(alt_ok, err[:, 1:], big)
+
+
 def initial_poses(
     obs: Observations,
     *,
@@ -132,6 +193,12 @@ def initial_poses(
     **changes,
 ) -> Initial:
     """Step 1 for every triplet of one problem, roots picked by Eq. 8 error.
+
+    The batch-first kernels compute it (`three_point_batch`, `pixel_error_kernel`): the
+    values of `triplet_roots` and `pose_errors` on every triplet, the roots in the order
+    of `jnp.argsort` of their errors (ties: slot order), in passes of at most `STEP1_PASS`
+    triplets. No derivative flows through it (the three-point kernel's inputs are
+    constants to it).
 
     **Arguments:**
     - `obs`: the problem (`jaxpose.observations`).
@@ -144,29 +211,14 @@ def initial_poses(
     """
     options = resolve(options, changes)
     idx = select_triplets(obs, options)[1] if triplets is None else triplets
-    dtype = obs.camera.dtype
-    big = jnp.finfo(dtype).max
-
-    def one(ijk):
-        sol = triplet_roots(obs, ijk, options)
-        err = pose_errors(Pose(sol.R, sol.t), obs)
-        err = jnp.where(sol.valid & jnp.isfinite(err), err, big)
-        order = jnp.argsort(err)
-        best, others = order[0], order[1:]
-        used = jnp.all(obs.mask[ijk])
-        status = jnp.where(used, sol.status, Status.TOO_FEW_POINTS).astype(jnp.int32)
-        ok = status == Status.OK
-        alt_ok = ok & (err[others] < big)
-        eye = jnp.eye(3, dtype=dtype)
-        pose = Pose(jnp.where(ok, sol.R[best], eye), jnp.where(ok, sol.t[best], 0))
-        alt = Pose(
-            jnp.where(alt_ok[:, None, None], sol.R[others], eye[None]),
-            jnp.where(alt_ok[:, None], sol.t[others], 0),
-        )
-        return pose, jnp.where(ok, err[best], big), status, alt, jnp.where(alt_ok, err[others], big)
-
     idx = jnp.asarray(idx, dtype=jnp.int32)
-    pose, error, status, alt, alt_error = jax.lax.map(one, idx, batch_size=pass_size(idx.shape[0]))
+    obs = jax.lax.stop_gradient(obs)
+    matches = matches_from_observations(jax.tree.map(lambda x: x[None], obs))
+    T = idx.shape[0]
+    size = max(1, -(-T // -(-T // STEP1_PASS))) if T else 1  # near-equal passes
+    pose, error, status, alt, alt_error = in_chunks(
+        lambda block: _step1(obs, matches, block, options), idx, size=size
+    )
     return Initial(pose, error, status, idx, alt, alt_error)
 
 

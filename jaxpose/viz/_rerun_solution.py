@@ -305,6 +305,6 @@ def log_solution(
         f"- pose error (paper): {float(np.asarray(solution.pose_error)):.6g} model units",
         f"- rotation vector (model to world): {np.array2string(rvec, precision=6)}",
         f"- translation: {np.array2string(pose[1], precision=6)}",
-        f"- from triplet {int(np.asarray(solution.triplet))}",
+        f"- from the triplet of matches {np.asarray(solution.triplet).tolist()}",
     ]
     rec.log("summary", _summary(lines), static=True)

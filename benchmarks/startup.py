@@ -1,0 +1,186 @@
+"""Start-up: how long a new process waits for its first answer.
+
+Every figure is measured in a fresh Python process (`spawn`), with the program cache
+(`jaxpose.api._programs`, `$JAXPOSE_CACHE_DIR`) in a folder of this run's own:
+
+- `cold`: an empty cache (a new machine): import jaxpose, then the first `solve_pnp` on a
+  bench-like problem of 16 points (it compiles);
+- `warm`: the same in a new process once the cache holds the program (it loads);
+- `new_n`: in a process that has solved a 16-point problem, the first call with 13 points
+  (the same bucket: no compilation);
+- `demo`: `make demo`'s command (`jaxpose reproduce --no-figures`) run twice, the second
+  time with its caches built.
+
+    python -m benchmarks.startup [--quick] [--out benchmarks/results/startup.json]
+
+`--quick` skips the demo. Each figure is reported beside its target.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ._harness import RESULTS, ROOT, rich_console, verdict, worker_main, write_json
+
+__all__ = ["TARGETS", "main", "measure"]
+
+#: target name -> (description, bound in seconds)
+TARGETS = {
+    "warm": ("fresh process, cache built: import + first solve_pnp (n = 16)", 1.5),
+    "cold": ("new machine, empty cache: import + first solve_pnp (n = 16)", 6.0),
+    "new_n": ("a new n inside a compiled bucket (16 -> 13): first call", 0.05),
+    "demo_second": ("make demo (jaxpose reproduce), second run", 10.0),
+}
+
+
+def _problem(n: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    obj = rng.uniform(-60, 60, (n, 3))
+    angle = rng.normal(0, 0.3, 3)
+    import cv2
+
+    R, _ = cv2.Rodrigues(angle)
+    X = obj @ R.T + [5.0, -3.0, 450.0]
+    img = X[:, :2] / X[:, 2:] * 800 + [320, 240] + rng.normal(0, 0.5, (n, 2))
+    return obj, img, K
+
+
+def _first_call(spec: dict) -> dict:
+    """Worker: import jaxpose and solve; the times of each part."""
+    t0 = time.perf_counter()
+    import jaxpose as jp
+    from jaxpose.api import _programs
+
+    t1 = time.perf_counter()
+    out: dict = {"import_s": t1 - t0}
+    calls = []
+    for n in spec["points"]:
+        obj, img, K = _problem(n)
+        s = time.perf_counter()
+        ok, _, _ = jp.solve_pnp(obj, img, K)
+        calls.append({"n": n, "s": time.perf_counter() - s, "ok": bool(ok)})
+    out["calls"] = calls
+    out["compiled"] = sum(p.compiled for p in _programs._PROGRAMS.values())
+    out["loaded"] = sum(p.loaded for p in _programs._PROGRAMS.values())
+    return out
+
+
+def _spawn(spec: dict, cache: Path) -> dict:
+    import json
+
+    env = dict(os.environ, JAXPOSE_CACHE_DIR=str(cache))
+    cmd = [sys.executable, "-m", "benchmarks.startup", "--worker", json.dumps(spec)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=900)
+    for line in proc.stdout.splitlines():
+        if line.startswith("BENCHMARK_RESULT "):
+            return json.loads(line.split(" ", 1)[1])
+    return {"failed": f"exit {proc.returncode}: {proc.stderr.strip()[-600:]}"}
+
+
+def _demo(cache: Path, out: Path) -> float:
+    env = dict(os.environ, JAXPOSE_CACHE_DIR=str(cache))
+    exe = Path(sys.executable).parent / "jaxpose"
+    t0 = time.perf_counter()
+    subprocess.run(
+        [str(exe), "reproduce", "--no-figures", "--out", str(out)],
+        cwd=ROOT,
+        env=env,
+        check=True,
+        capture_output=True,
+        timeout=1800,
+    )
+    return time.perf_counter() - t0
+
+
+def measure(quick: bool = False) -> dict:
+    """Every figure of the module docstring, each in a fresh process."""
+    res: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp) / "cache"
+        cold = _spawn({"kind": "first", "points": [16]}, cache)
+        warm = _spawn({"kind": "first", "points": [16]}, cache)
+        new_n = _spawn({"kind": "first", "points": [16, 13]}, cache)
+        res["cold"] = cold
+        res["warm"] = warm
+        res["new_n"] = new_n
+        figures = {}
+        for key, r in (("cold", cold), ("warm", warm)):
+            if "failed" not in r:
+                figures[key] = r["import_s"] + r["calls"][0]["s"]
+        if "failed" not in new_n:
+            figures["new_n"] = new_n["calls"][1]["s"]
+        if not quick:
+            demo_cache = Path(tmp) / "demo-cache"
+            shutil.rmtree(demo_cache, ignore_errors=True)
+            first = _demo(demo_cache, Path(tmp) / "out1")
+            second = _demo(demo_cache, Path(tmp) / "out2")
+            res["demo"] = {"first_s": first, "second_s": second}
+            figures["demo_second"] = second
+    res["targets"] = {
+        key: {
+            "what": what,
+            "figure_s": figures.get(key),
+            "target_s": bound,
+            "verdict": "not measured"
+            if figures.get(key) is None
+            else verdict(figures[key], bound, higher_is_better=False),
+        }
+        for key, (what, bound) in TARGETS.items()
+    }
+    return res
+
+
+def print_startup(res: dict, console) -> None:
+    from rich.table import Table
+
+    table = Table(title="Start-up (each in a fresh process)")
+    for col in ("what", "figure", "target", "verdict"):
+        table.add_column(col)
+    for row in res["targets"].values():
+        fig = row["figure_s"]
+        text = "-" if fig is None else (f"{fig * 1e3:.1f} ms" if fig < 1 else f"{fig:.2f} s")
+        bound = row["target_s"]
+        table.add_row(
+            row["what"],
+            text,
+            f"<= {bound * 1e3:g} ms" if bound < 1 else f"<= {bound:g} s",
+            row["verdict"],
+        )
+    console.print(table)
+    for key in ("cold", "warm"):
+        r = res.get(key, {})
+        if "calls" in r:
+            console.print(
+                f"{key}: import {r['import_s']:.2f} s, first solve_pnp {r['calls'][0]['s']:.2f} s"
+                f" ({r['compiled']} compiled, {r['loaded']} loaded)"
+            )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="skip the demo runs")
+    parser.add_argument("--out", default=str(RESULTS / "startup.json"))
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.worker is not None:
+        worker_main({"first": _first_call}, [args.worker])
+        return 0
+    res = measure(quick=args.quick)
+    path = write_json(args.out, res)
+    print_startup(res, rich_console())
+    print(f"written: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

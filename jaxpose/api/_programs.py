@@ -1,0 +1,275 @@
+"""Compiled programs that outlive the process, and the shape buckets that bound them.
+
+The numpy-in, numpy-out entry points (`solve_pnp`, `solve_pnp_batch`) run through a
+`Program`: a function compiled once per input signature (shapes, dtypes), whose XLA
+executables are kept
+
+- in the process, one per signature;
+- on disk, serialized (`jax.experimental.serialize_executable`), so that a new process
+  skips tracing, lowering and XLA compilation alike: loading a program takes
+  milliseconds where compiling it takes seconds.
+
+**Buckets.** The number of points `n` is padded (the padding masked out) to
+`bucket_points(n)`: 8, 16, 32, 64, ... points, so that every `n` from 4 to 40 runs one
+of four programs; batches run in chunks of `16 * 2^k` problems (`jaxpose.api._pnp`).
+
+**Where.** `$JAXPOSE_CACHE_DIR` when set (`off`, `0`, `false`, `no` or empty: no disk
+cache), else `$XDG_CACHE_HOME/jaxpose`, else `~/.cache/jaxpose`; programs live in
+`programs/<fingerprint>/` under it. The fingerprint hashes jaxpose's own source files,
+the versions of jax and jaxlib, the backend, its devices and the processor: after an
+upgrade, an edit of the sources or on another machine a new folder is read, never an old
+program; the other folders are removed when a new one is made. A file that cannot be read
+back (truncated, or from an incompatible build) is compiled again and replaced. JAX's
+global configuration (its own persistent cache included) is never touched.
+
+`warm_up` (`jaxpose warmup` on the command line) builds the standard programs ahead of
+time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import pickle
+import platform
+import shutil
+import tempfile
+import threading
+from collections.abc import Callable, Hashable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+
+def _version(package: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(package)
+    except PackageNotFoundError:  # pragma: no cover
+        return "?"
+
+__all__ = [
+    "CACHE_ENV",
+    "POINT_BUCKETS",
+    "Program",
+    "bucket_points",
+    "cache_dir",
+    "fingerprint",
+    "program",
+    "program_name",
+]
+
+#: The environment variable that moves (a folder) or turns off (`off`) the disk cache.
+CACHE_ENV = "JAXPOSE_CACHE_DIR"
+_OFF = {"", "0", "off", "false", "no", "none"}
+
+#: Point-count buckets: `n` runs the program of the smallest bucket holding it; above the
+#: last one, the next power of two.
+POINT_BUCKETS = (8, 16, 32, 64, 128, 256, 512, 1024)
+
+# The serialized program's header: a file from another layout is never unpickled as one.
+_MAGIC = b"jaxpose-program-1\n"
+
+
+def bucket_points(n: int) -> int:
+    """The padded point count of a problem with `n` points (`POINT_BUCKETS`)."""
+    for size in POINT_BUCKETS:
+        if n <= size:
+            return size
+    return 1 << (int(n) - 1).bit_length()
+
+
+def cache_dir() -> Path | None:
+    """The disk cache's root folder (read from the environment at each call), or `None`
+    when it is turned off."""
+    env = os.environ.get(CACHE_ENV)
+    if env is not None:
+        return None if env.strip().lower() in _OFF else Path(env).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg).expanduser() if xdg else Path.home() / ".cache"
+    return base / "jaxpose"
+
+
+def _processor() -> str:
+    """The processor's model name and feature flags (a program compiled for one need not
+    run on another)."""
+    with contextlib.suppress(OSError):
+        text = Path("/proc/cpuinfo").read_text()
+        keep = [line for line in text.splitlines() if line.startswith(("model name", "flags"))]
+        return "\n".join(sorted(set(keep)))
+    return f"{platform.machine()} {platform.processor()}"
+
+
+_FINGERPRINT: str | None = None
+
+
+def fingerprint() -> str:
+    """A hash of what a compiled program depends on beyond its own inputs: jaxpose's
+    source files, jax and jaxlib, the backend and its devices, the processor."""
+    global _FINGERPRINT
+    if _FINGERPRINT is None:
+        h = hashlib.sha256()
+        package = Path(__file__).resolve().parents[1]
+        for path in sorted(package.rglob("*.py")):
+            h.update(str(path.relative_to(package)).encode())
+            h.update(path.read_bytes())
+        h.update(f"{jax.__version__} {_version('jaxlib')}".encode())
+        h.update(" ".join(f"{d.platform}:{d.device_kind}" for d in jax.devices()).encode())
+        h.update(_processor().encode())
+        h.update(os.environ.get("XLA_FLAGS", "").encode())
+        _FINGERPRINT = h.hexdigest()[:20]
+    return _FINGERPRINT
+
+
+def _folder() -> Path | None:
+    """This build's program folder (made on first use, the stale ones removed), or
+    `None` when the disk cache is off or cannot be written."""
+    root = cache_dir()
+    if root is None:
+        return None
+    programs = root / "programs"
+    here = programs / fingerprint()
+    if here.is_dir():
+        return here
+    try:
+        here.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    for other in programs.iterdir():  # programs of another build: never used again
+        if other != here and other.is_dir():
+            shutil.rmtree(other, ignore_errors=True)
+    return here
+
+
+_RUNTIME_READY = False
+
+
+def _prepare_runtime() -> None:
+    """Load what a deserialized program calls into: the CPU's LAPACK kernels are set up
+    by JAX when it first lowers a linear-algebra operation, not when it loads a program
+    that uses them (which would crash). Lowering a tiny solve does it (once)."""
+    global _RUNTIME_READY
+    if not _RUNTIME_READY:
+        import jax.numpy as jnp
+
+        jax.jit(jnp.linalg.solve).lower(jnp.eye(2), jnp.ones(2))
+        _RUNTIME_READY = True
+
+
+def _signature(args) -> tuple:
+    return tuple((tuple(np.shape(a)), str(a.dtype)) for a in map(_array, args))
+
+
+def _array(a):
+    return a if hasattr(a, "dtype") else np.asarray(a)
+
+
+class Program:
+    """`fn(*arrays)` compiled once per input signature, its executables kept in the
+    process and on disk (see the module docstring).
+
+    `name` identifies the program on disk together with the signature: it must name
+    the function and every value closed over it (e.g. the `Options`), as `program` does.
+    `compiled` counts the XLA compilations this object ran, `loaded` the programs it read
+    from disk.
+    """
+
+    def __init__(self, fn: Callable, name: str):
+        self._jit = jax.jit(fn)
+        self.name = name
+        self._memo: dict[tuple, Any] = {}
+        self._lock = threading.Lock()
+        self.compiled = 0
+        self.loaded = 0
+
+    @staticmethod
+    def _path(key: bytes) -> Path | None:
+        folder = _folder()
+        if folder is None:
+            return None
+        return folder / f"{hashlib.sha256(key).hexdigest()[:32]}.bin"
+
+    def _load(self, path: Path | None, key: bytes):
+        from jax.experimental.serialize_executable import deserialize_and_load
+
+        if path is None or not path.is_file():
+            return None
+        try:
+            data = path.read_bytes()
+            if not data.startswith(_MAGIC):
+                return None
+            stored_key, payload, in_tree, out_tree = pickle.loads(data[len(_MAGIC) :])
+            if stored_key != key:
+                return None
+            _prepare_runtime()
+            return deserialize_and_load(payload, in_tree, out_tree)
+        except Exception:  # a broken or foreign file: compiled again and replaced
+            return None
+
+    def _store(self, path: Path | None, key: bytes, compiled) -> None:
+        from jax.experimental.serialize_executable import serialize
+
+        if path is None:
+            return
+        try:
+            payload, in_tree, out_tree = serialize(compiled)
+            data = _MAGIC + pickle.dumps((key, payload, in_tree, out_tree))
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".part-")
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.replace(tmp, path)  # atomic: a reader sees the whole file or none
+        except Exception:  # a cache that cannot be written costs speed, never an answer
+            with contextlib.suppress(Exception):
+                os.unlink(tmp)  # type: ignore[possibly-undefined]
+
+    def executable(self, *args):
+        """The compiled program for `args` (loaded from disk, or compiled and stored)."""
+        signature = _signature(args)
+        exe = self._memo.get(signature)
+        if exe is not None:
+            return exe
+        with self._lock:
+            exe = self._memo.get(signature)
+            if exe is not None:
+                return exe
+            x64 = jax.dtypes.canonicalize_dtype(np.float64) == np.float64
+            key = repr((self.name, signature, bool(x64))).encode()
+            path = self._path(key)
+            exe = self._load(path, key)
+            if exe is not None:
+                self.loaded += 1
+            else:
+                exe = self._jit.lower(*args).compile()
+                self.compiled += 1
+                self._store(path, key, exe)
+            self._memo[signature] = exe
+            return exe
+
+    def __call__(self, *args):
+        return self.executable(*args)(*args)
+
+
+def program_name(fn: Callable, static: tuple = (), keywords: tuple = ()) -> str:
+    """The name of `fn(*arrays, *static, **dict(keywords))` on disk: the function's
+    module and qualified name and the `repr` of the static values (e.g. an `Options`)."""
+    target = getattr(fn, "__wrapped__", fn)
+    return f"{target.__module__}.{target.__qualname__}{static!r}{keywords!r}"
+
+
+_PROGRAMS: dict[tuple, Program] = {}
+
+
+def program(fn: Callable, *static: Hashable) -> Program:
+    """The `Program` of `lambda *arrays: fn(*arrays, *static)` (one per `fn` and
+    `static`, for the life of the process). `fn` is a module-level function; `static`
+    values are hashable and their `repr` names them (e.g. an `Options`)."""
+    key = (fn, static)
+    found = _PROGRAMS.get(key)
+    if found is None:
+        name = program_name(fn, static)
+        found = _PROGRAMS[key] = Program(lambda *arrays: fn(*arrays, *static), name)
+    return found

@@ -1,0 +1,105 @@
+"""Build the standard compiled programs ahead of time (`jaxpose warmup`).
+
+`warm_up` compiles (or finds already on disk) the programs that `solve_pnp` and
+`solve_pnp_batch` run for each point bucket, and stores them in the program cache
+(`jaxpose.api._programs`), so that the first call of a new process only loads them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..strategy._options import Options
+from ._pnp import CHUNK, _batched_opencv, _pad_points, _solve_opencv, _stages
+from ._programs import POINT_BUCKETS, Program, bucket_points, program
+
+__all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_plan"]
+
+#: The point buckets `warm_up` builds by default: every `n` from 4 to 64.
+DEFAULT_POINTS = POINT_BUCKETS[:4]
+#: The batch chunks `warm_up` builds by default for `solve_pnp_batch`: none (a batch
+#: compiles its chunk sizes on first use; name them, e.g. `(16, 4096)`, to build them).
+DEFAULT_BATCHES: tuple[int, ...] = ()
+
+
+class Built(NamedTuple):
+    """One program `warm_up` built: `what` (its description), `compiled` (True: compiled
+    now; False: already on disk, or in this process)."""
+
+    what: str
+    compiled: bool
+
+
+def _problem(n: int, batch: int | None):
+    """A problem of `n` points in the bucket's shapes (the values do not matter to the
+    program, only the shapes)."""
+    K = jnp.asarray([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]], jnp.float64)
+    rng = np.random.default_rng(n)
+    obj = rng.uniform(-1, 1, (n, 3))
+    img = rng.uniform(0, 640, (n, 2))
+    if batch is not None:
+        obj, img = np.broadcast_to(obj, (batch, n, 3)), np.broadcast_to(img, (batch, n, 2))
+    obj, img, mask = _pad_points(obj, img)
+    return K, jnp.asarray(obj), jnp.asarray(img), jnp.asarray(mask)
+
+
+def warm_up_plan(
+    points: Iterable[int] = DEFAULT_POINTS,
+    batches: Iterable[int] = DEFAULT_BATCHES,
+    options: Options | None = None,
+) -> list[tuple[str, Callable[[], bool]]]:
+    """The programs `warm_up` builds, as `(description, build)` pairs: `build()` compiles
+    the program (or loads it) and returns whether it compiled."""
+    options = Options() if options is None else options
+    plan: list[tuple[str, Callable[[], bool]]] = []
+    stages = [s for s in _stages(options) if s is not None]
+    names = ["solve_pnp", "solve_pnp fallback"]
+    for n in sorted({bucket_points(int(p)) for p in points}):
+        for stage, name in zip(stages, names, strict=False):
+
+            def build(n=n, stage=stage) -> bool:
+                prog = program(_solve_opencv, stage)
+                before = prog.compiled
+                with jax.enable_x64(True):
+                    prog.executable(*_problem(n, None))
+                return prog.compiled > before
+
+            plan.append((f"{name}, {n} points", build))
+        for B in sorted({min(int(b), CHUNK) for b in batches}):
+
+            def build_batch(n=n, B=B) -> bool:
+                from ._batch import _compiled
+
+                prog = _compiled(_batched_opencv, (stages[0],), (), None, 1, 3)
+                assert isinstance(prog, Program)
+                before = prog.compiled
+                with jax.enable_x64(True):
+                    prog.executable(*_problem(n, B))
+                return prog.compiled > before
+
+            plan.append((f"solve_pnp_batch, {n} points, {B} problems", build_batch))
+    return plan
+
+
+def warm_up(
+    points: Iterable[int] = DEFAULT_POINTS,
+    batches: Iterable[int] = DEFAULT_BATCHES,
+    options: Options | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[Built]:
+    """Build the programs of `solve_pnp` (both stages: the answer from the best roots and
+    the whole mixed algorithm it falls back to) for the buckets of `points`, and of
+    `solve_pnp_batch` for the chunk sizes `batches`, with `options` (default `Options()`).
+    Programs already on disk are only loaded. `progress(description)` is called before
+    each. Returns what was built."""
+    built = []
+    for what, build in warm_up_plan(points, batches, options):
+        if progress is not None:
+            progress(what)
+        built.append(Built(what, build()))
+    return built

@@ -1,0 +1,46 @@
+"""`jaxpose warmup`: build the compiled programs of `solve_pnp` and `solve_pnp_batch` ahead
+of time, into the program cache (`jaxpose.api._programs`), with a progress bar."""
+
+from __future__ import annotations
+
+import time
+
+from ._common import CliError, new_console
+
+__all__ = ["cmd_warmup"]
+
+
+def cmd_warmup(args) -> int:
+    """Run `jaxpose warmup` with the parsed `args`; returns the exit code."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ..api._programs import cache_dir, fingerprint
+    from ..api._warmup import warm_up_plan
+
+    console = new_console()
+    if any(p < 3 for p in args.points) or any(b < 1 for b in args.batch):
+        raise CliError("--points must be >= 3 and --batch >= 1")
+    root = cache_dir()
+    if root is None:
+        console.print("[yellow]the program cache is off (JAXPOSE_CACHE_DIR): nothing is kept")
+    plan = warm_up_plan(args.points, args.batch)
+    compiled = 0
+    t0 = time.perf_counter()
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeElapsedColumn(),
+        console=console,
+    ) as bar:
+        task = bar.add_task("programs", total=len(plan))
+        for what, build in plan:
+            bar.update(task, description=what)
+            compiled += bool(build())
+            bar.advance(task)
+    where = "nowhere (cache off)" if root is None else str(root / "programs" / fingerprint())
+    console.print(
+        f"{len(plan)} programs ready ({compiled} compiled, {len(plan) - compiled} found) "
+        f"in {time.perf_counter() - t0:.1f} s: {where}"
+    )
+    return 0

@@ -1,0 +1,177 @@
+"""Compiled programs kept on disk, and the point buckets that bound how many there are
+(`jaxpose.api._programs`, `solve_pnp`'s padding)."""
+
+import functools
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxpose as jp
+from jaxpose.api import _programs
+from jaxpose.api._programs import CACHE_ENV, Program, bucket_points, cache_dir
+
+K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+
+
+def _problem(n: int, seed: int, noise: float = 0.5):
+    rng = np.random.default_rng(seed)
+    obj = rng.uniform(-60, 60, (n, 3))
+    R = np.asarray(jp.rotvec_to_matrix(rng.normal(0, 0.4, 3)))
+    t = np.array([rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(350, 600)])
+    X = obj @ R.T + t
+    img = X[:, :2] / X[:, 2:] * 800 + [320, 240] + rng.normal(0, noise, (n, 2))
+    return obj, img
+
+
+def _tiny(x):
+    """A program that calls LAPACK (a linear solve): loading one in a new process needs
+    the LAPACK kernels set up first."""
+    return jnp.linalg.solve(x @ x.T + jnp.eye(3), x[:, 0])
+
+
+def test_buckets():
+    assert [bucket_points(n) for n in (3, 8, 9, 16, 17, 40, 64, 65, 1024)] == [
+        8,
+        8,
+        16,
+        16,
+        32,
+        64,
+        64,
+        128,
+        1024,
+    ]
+    assert bucket_points(1025) == 2048 and bucket_points(3000) == 4096
+
+
+def test_cache_location_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "here"))
+    assert cache_dir() == tmp_path / "here"
+    for off in ("off", "0", "", "false"):
+        monkeypatch.setenv(CACHE_ENV, off)
+        assert cache_dir() is None
+    monkeypatch.delenv(CACHE_ENV)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir() == tmp_path / "xdg" / "jaxpose"
+
+
+def test_programs_are_stored_loaded_and_rebuilt(monkeypatch, tmp_path):
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    x = jnp.arange(9.0).reshape(3, 3) / 7
+    first = Program(_tiny, "tests.tiny")
+    want = first(x)
+    assert (first.compiled, first.loaded) == (1, 0)
+    files = list((tmp_path / "programs").rglob("*.bin"))
+    assert len(files) == 1
+    again = Program(_tiny, "tests.tiny")  # as a new process would: from disk
+    np.testing.assert_array_equal(again(x), want)
+    assert (again.compiled, again.loaded) == (0, 1)
+    again(x)
+    assert (again.compiled, again.loaded) == (0, 1)  # kept in the process
+    other = Program(_tiny, "tests.tiny")  # another shape: another program
+    other(jnp.ones((3, 4)))
+    assert other.compiled == 1
+    # a damaged file is compiled again and replaced, never used
+    files[0].write_bytes(files[0].read_bytes()[:100])
+    broken = Program(_tiny, "tests.tiny")
+    np.testing.assert_array_equal(broken(x), want)
+    assert (broken.compiled, broken.loaded) == (1, 0)
+    assert Program(_tiny, "tests.tiny").executable(x) is not None
+    # another build (jaxpose's sources, jax, the machine): a new folder, the old removed
+    old = files[0].parent
+    monkeypatch.setattr(_programs, "_FINGERPRINT", "another-build")
+    rebuilt = Program(_tiny, "tests.tiny")
+    rebuilt(x)
+    assert (rebuilt.compiled, rebuilt.loaded) == (1, 0)
+    assert not old.exists() and (tmp_path / "programs" / "another-build").is_dir()
+
+
+def test_cache_off_keeps_nothing(monkeypatch, tmp_path):
+    monkeypatch.setenv(CACHE_ENV, "off")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    p = Program(_tiny, "tests.tiny-off")
+    p(jnp.eye(3))
+    assert p.compiled == 1 and not any(tmp_path.iterdir())
+
+
+def test_a_new_process_loads_instead_of_compiling(tmp_path):
+    """Two fresh processes: the first compiles and stores, the second loads (a program
+    that calls LAPACK, which crashed when loaded before LAPACK was set up)."""
+    script = textwrap.dedent(
+        """
+        import jax, jax.numpy as jnp
+        jax.config.update("jax_enable_x64", True)
+        from jaxpose.api._programs import Program
+        from tests.api.test_programs import _tiny
+        p = Program(_tiny, "tests.tiny-process")
+        y = p(jnp.arange(9.0).reshape(3, 3) / 7)
+        print(p.compiled, p.loaded, repr(float(y.sum())))
+        """
+    )
+    env = dict(os.environ, **{CACHE_ENV: str(tmp_path)})
+    root = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))
+
+    def run():
+        out = subprocess.run(
+            [sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout.split()
+
+    first, second = run(), run()
+    assert first[:2] == ["1", "0"] and second[:2] == ["0", "1"]
+    assert first[2] == second[2]
+
+
+@pytest.mark.parametrize("n", [4, 5, 11, 23])
+def test_padded_points_give_the_unpadded_answer(n):
+    """`solve_pnp` pads `n` to its bucket (masked): the answer is `solve`'s on the
+    unpadded problem (whose best roots are accepted: no fallback compiled)."""
+    obj, img = _problem(n, seed=n)
+    ok, rvec, tvec = jp.solve_pnp(obj, img, K)
+    unpadded = functools.partial(jp.solve, options=jp.Options(fallback=False))
+    sol = jax.jit(unpadded)(jp.camera_matrix(K), obj, img)
+    assert ok and bool(sol.accepted)
+    np.testing.assert_allclose(tvec[:, 0], np.asarray(sol.pose.t), rtol=1e-8, atol=1e-8)
+    R = np.asarray(jp.rotvec_to_matrix(rvec[:, 0]))
+    np.testing.assert_allclose(R, np.asarray(sol.pose.R), atol=1e-9)
+
+
+def test_every_n_from_4_to_40_compiles_one_program_per_bucket():
+    """Solving problems of every size from 4 to 40 points runs four programs (buckets 8,
+    16, 32, 64): XLA compiles at most those four (fewer when the shared test cache already
+    holds some), and a second pass over every size compiles nothing."""
+    first_problems = [_problem(n, seed=100 + n) for n in range(4, 41)]
+    second_problems = [_problem(n, seed=200 + n) for n in range(4, 41)]
+    compiles: list[str] = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(event)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        before = _programs_in_use()
+        for obj, img in first_problems:
+            ok, _, _ = jp.solve_pnp(obj, img, K)
+            assert ok, len(obj)
+        programs = _programs_in_use() - before
+        first_pass = len(compiles)
+        for obj, img in second_problems:
+            jp.solve_pnp(obj, img, K)
+        assert len(compiles) == first_pass  # nothing new
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert programs <= 4
+    assert first_pass <= 4
+
+
+def _programs_in_use() -> int:
+    """Executables held by `solve_pnp`'s programs in this process."""
+    return sum(len(p._memo) for p in _programs._PROGRAMS.values())
