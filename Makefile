@@ -31,10 +31,12 @@ docs: $(STAMP)
 # The speed targets table (benchmarks/speed.py's TARGETS beside their figures) prints last.
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.p3p_rate --n 100000
+	$(BIN)/python -m benchmarks.startup
 	$(BIN)/python -m benchmarks.run
 
 bench-quick: $(STAMP)
 	$(BIN)/python -m benchmarks.p3p_rate --n 20000 --out /tmp/p3p_rate_quick.json
+	$(BIN)/python -m benchmarks.startup --quick
 	$(BIN)/python -m benchmarks.run --quick
 
 lint: $(STAMP)

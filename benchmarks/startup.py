@@ -169,14 +169,16 @@ def print_startup(res: dict, console) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="skip the demo runs")
-    parser.add_argument("--out", default=str(RESULTS / "startup.json"))
+    parser.add_argument("--out", help="result file (default results/startup[_quick].json)")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker is not None:
         worker_main({"first": _first_call}, [args.worker])
         return 0
     res = measure(quick=args.quick)
-    path = write_json(args.out, res)
+    res["quick"] = args.quick
+    out = args.out or RESULTS / ("startup_quick.json" if args.quick else "startup.json")
+    path = write_json(out, res)
     print_startup(res, rich_console())
     print(f"written: {path}")
     return 0

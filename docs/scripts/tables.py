@@ -42,6 +42,7 @@ from tables_speed import (  # noqa: E402
     speed,
     speed_batch,
     speed_phases,
+    startup,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -166,6 +167,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "speed": speed,
     "speed_phases": speed_phases,
     "speed_batch": speed_batch,
+    "startup": startup,
     "scale_n": scale_n,
     "scale_batch": scale_batch,
     "scale_cache": scale_cache,

@@ -281,3 +281,33 @@ def scale_cache(results: Path) -> str:
 
 
 # ----------------------------------------------------------------------------- accuracy
+
+
+def startup(results: Path) -> str:
+    """The start-up targets (`benchmarks/startup.py`): each figure measured in a fresh
+    process, beside its target."""
+    d, name = load(results, "startup.json", "startup_quick.json")
+    rows = []
+    for key, r in d["targets"].items():
+        figure = r["figure_s"]
+        bound = r["target_s"]
+        rows.append(
+            (
+                f"`{key}`",
+                r["what"],
+                "-" if figure is None else duration(figure),
+                f"<= {duration(bound)}",
+                r["verdict"],
+            )
+        )
+    parts = [table(("target", "what", "jaxpose", "bound", "verdict"), rows, left=2)]
+    for key in ("cold", "warm"):
+        r = d.get(key, {})
+        if "calls" in r:
+            parts.append(
+                f"`{key}`: import {duration(r['import_s'])}, first `solve_pnp` "
+                f"{duration(r['calls'][0]['s'])} ({r['compiled']} programs compiled, "
+                f"{r['loaded']} loaded from the cache)."
+            )
+    command = "python -m benchmarks.startup" + (" --quick" if "quick" in name else "")
+    return "\n\n".join(parts) + "\n\n" + caption(d, name, command=command)

@@ -52,6 +52,7 @@ def _version(package: str) -> str:
     except PackageNotFoundError:  # pragma: no cover
         return "?"
 
+
 __all__ = [
     "CACHE_ENV",
     "POINT_BUCKETS",
