@@ -47,13 +47,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._camera import normalize_camera, project, project_with_depth
 from ..geometry._numerics import as_float, by_precision, masked_centroid, safe_sqrt
 from ..geometry._validate import no_type_check
-from ..solvers._nonlinear import _solver
 from ..solvers._status import StatusCode
 from ._robot import Robot, forward_kinematics
 
@@ -302,6 +300,10 @@ def calibrate(
 
     **Raises:** `ValueError` naming the argument for inconsistent shapes.
     """
+    import optimistix as optx  # imported when first used (see `solvers._optimistix`)
+
+    from ..solvers._optimistix import lm_solver
+
     points, pixels, mask = _check_inputs(points, pixels, mask)
     dtype = points.dtype
     rtol = by_precision(dtype, f64=1e-10, f32=1e-5) if rtol is None else rtol
@@ -312,7 +314,7 @@ def calibrate(
     y0 = jnp.zeros(11, dtype)
     dlt_error = _rms(_residual(y0, args).reshape(-1, 2), mask)
     sol = optx.least_squares(
-        _residual, _solver(rtol, atol), y0, args, max_steps=max_steps, throw=False
+        _residual, lm_solver(rtol, atol), y0, args, max_steps=max_steps, throw=False
     )
     y = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, y0)
     r = _residual(y, args)

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from ..geometry._numerics import safe_div, safe_sqrt
 from ..geometry._rotation import _sinc_of_sq
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "add",
     "adjugate",
     "cross",
+    "degeneracy",
     "det",
     "dot",
     "matmul",
@@ -276,3 +278,17 @@ def together(tree, group: int = 8):
 
 def _or_add(x, y):
     return tuple(u | w if u.dtype == jnp.bool_ else u + w for u, w in zip(x, y, strict=True))
+
+
+def degeneracy(
+    u: tuple[Array, Array, Array], v: tuple[Array, Array, Array], x, min_area, collinear_tol
+):
+    """SPEC 3.1's tests (`three_point`) in component form: `u`, `v` the three pixels'
+    coordinates, `x` the three model points. Returns `(degenerate_image,
+    degenerate_model)`."""
+    area = 0.5 * jnp.abs((u[1] - u[0]) * (v[2] - v[0]) - (v[1] - v[0]) * (u[2] - u[0]))
+    e12, e13, e23 = sub(x[0], x[1]), sub(x[0], x[2]), sub(x[1], x[2])
+    longest = jnp.maximum(jnp.maximum(norm_sq(e12), norm_sq(e13)), norm_sq(e23))
+    n = cross(sub(x[1], x[0]), sub(x[2], x[0]))
+    shape = safe_div(0.5 * safe_sqrt(norm_sq(n)), longest)
+    return ~(area >= min_area), ~(shape >= collinear_tol)

@@ -50,6 +50,7 @@ from ._components import (
     adjugate,
     combine,
     cross,
+    degeneracy,
     det,
     dot,
     first_extreme,
@@ -68,16 +69,9 @@ from ._kernel_linear import in_chunks
 from ._p3p import _DOUBLE_ROOT_ULPS, _NEAR, _NEAR_RESIDUAL, ThreePointResult
 from ._status import Status
 
-__all__ = [
-    "P3PCandidates",
-    "degeneracy",
-    "p3p_batch",
-    "p3p_components",
-    "three_point_batch",
-]
+__all__ = ["P3PCandidates", "p3p_batch", "p3p_components", "three_point_batch"]
 
 Triple = tuple[Vec3, Vec3, Vec3]
-Array3 = tuple[Array, Array, Array]
 
 # Triplets per pass of `p3p_batch` / `three_point_batch` (see the module docstring).
 CHUNK = 4096
@@ -531,24 +525,6 @@ def p3p_batch(
     return in_chunks(solve, f, m, size=_pass_size(f.shape[0], chunk))
 
 
-def degeneracy(u: Array3, v: Array3, x: Triple, min_area, collinear_tol):
-    """SPEC 3.1's tests (`three_point`) in component form: `u`, `v` the three pixels'
-    coordinates, `x` the three model points. Returns `(degenerate_image,
-    degenerate_model)`."""
-    area = 0.5 * jnp.abs((u[1] - u[0]) * (v[2] - v[0]) - (v[1] - v[0]) * (u[2] - u[0]))
-    e12, e13, e23 = sub(x[0], x[1]), sub(x[0], x[2]), sub(x[1], x[2])
-    longest = jnp.maximum(jnp.maximum(norm_sq(e12), norm_sq(e13)), norm_sq(e23))
-    n = cross(sub(x[1], x[0]), sub(x[2], x[0]))
-    shape = safe_div(0.5 * safe_sqrt(norm_sq(n)), longest)
-    return ~(area >= min_area), ~(shape >= collinear_tol)
-
-
-def _degeneracy(image, x: Triple, min_area, collinear_tol):
-    """`degeneracy` of `(..., 3, 2)` pixels."""
-    u, v = jnp.moveaxis(image, (-1, -2), (0, 1))  # (3, ...) each
-    return degeneracy((u[0], u[1], u[2]), (v[0], v[1], v[2]), x, min_area, collinear_tol)
-
-
 def three_point_batch(
     camera: Float[Array, "*C 3 4"],
     model: Float[Array, "T 3 3"],
@@ -593,7 +569,10 @@ def three_point_batch(
         c = p3p_components(_triple(bearings), x)
         centre = jnp.moveaxis(centre, -1, 0)
         t = Vec3(*(a + (o if shared else _each(o)) for a, o in zip(c.t, centre, strict=True)))
-        degenerate_image, degenerate_model = _degeneracy(image, x, min_area, collinear_tol)
+        u, v = jnp.moveaxis(image, (-1, -2), (0, 1))  # (3, ...) each
+        degenerate_image, degenerate_model = degeneracy(
+            (u[0], u[1], u[2]), (v[0], v[1], v[2]), x, min_area, collinear_tol
+        )
         found = c.real | (c.near & approximate)
         ok = finite & ~degenerate_image & ~degenerate_model
         valid = found & c.positive & ok[..., None]

@@ -11,18 +11,13 @@ wide vector kernels under `jax.vmap`.
 
 from __future__ import annotations
 
-from typing import Any
-
-import equinox as eqx
 import jax
-import jax.flatten_util as jfu
 import jax.numpy as jnp
-import lineax as lx
 from jaxtyping import Array, Float
 
 from ..geometry._validate import no_type_check
 
-__all__ = ["NormalCholesky", "cholesky_solve", "symmetric_pinv"]
+__all__ = ["cholesky_solve", "symmetric_pinv"]
 
 
 # `cholesky_solve` checks its arguments' shapes itself (a `ValueError` naming it): no
@@ -72,49 +67,6 @@ def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array
             s = s - L[k][i] * x[k]
         x[i] = s * inv[i]
     return jnp.stack(x).astype(dtype)
-
-
-class _Static(eqx.Module):
-    """A pytree with no leaves that carries `value` (e.g. a pytree structure) through
-    `jit` as static data."""
-
-    value: Any = eqx.field(static=True)
-
-
-class NormalCholesky(lx.AbstractLinearSolver):
-    """A lineax solver for small dense least-squares systems: the normal equations by
-    `cholesky_solve` (unrolled), instead of a LAPACK QR per system.
-
-    Levenberg-Marquardt's damped step solves `[J; sqrt(lambda) I] x = [r; 0]`, which is
-    well conditioned by its damping; forming `A^T A` squares the condition number, so the
-    columns are equilibrated first. Used by `jaxpose.solvers._nonlinear` (6 parameters).
-    Forward solves only (`transpose` is not needed by optimistix's implicit adjoint,
-    which solves its own system)."""
-
-    def init(self, operator, options):
-        del options
-        return operator.as_matrix(), _Static(operator.in_structure())
-
-    def compute(self, state, vector, options):
-        del options
-        A, structure = state
-        b, _ = jfu.ravel_pytree(vector)
-        zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), structure.value)
-        _, unflatten = jfu.ravel_pytree(zeros)
-        scale = jnp.sqrt(jnp.sum(A * A, axis=0))
-        scale = jnp.where(scale > 0, scale, 1)
-        As = A / scale[None, :]
-        x = cholesky_solve(As.T @ As, As.T @ b) / scale
-        return unflatten(x), lx.RESULTS.successful, {}
-
-    def transpose(self, state, options):
-        raise NotImplementedError("NormalCholesky solves forward least-squares systems only")
-
-    def conj(self, state, options):
-        return state, options
-
-    def assume_full_rank(self):
-        return True
 
 
 def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):

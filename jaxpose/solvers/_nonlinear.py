@@ -22,20 +22,16 @@ at the optimum), not from unrolling the iterations.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from ..geometry._numerics import by_precision
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import quaternion_vector_to_matrix
 from ._chart import chart_at, chart_points, chart_pose
-from ._linalg import NormalCholesky
 from ._residuals import pixel_residuals, pose_error, rounding_level, settle
 from ._status import Status
 
@@ -50,55 +46,6 @@ class NonlinearResult(NamedTuple):
     error: Float[Array, ""]
     steps: Int[Array, ""]
     status: Int[Array, ""]
-
-
-class _TrustRegion(optx.ClassicalTrustRegion):
-    """optimistix's classical trust region, with its initial step size in the parameters'
-    dtype (optimistix creates it as `jnp.array(1.0)`, float64 whenever x64 is enabled,
-    which breaks float32 solves in an x64 process)."""
-
-    def init(self, y, f_info_struct):
-        state = super().init(y, f_info_struct)
-        return type(state)(step_size=state.step_size.astype(jax.tree.leaves(y)[0].dtype))
-
-
-class _StepLimit(optx.AbstractLeastSquaresSolver):
-    """A least-squares solver that stops after `options["step_limit"]` steps, a traced
-    integer (optimistix's `max_steps` is static: the loop's bound), reporting
-    `nonlinear_max_steps_reached` as optimistix does at its own bound. Lets one compiled
-    solver serve calls with different budgets (the mixed algorithm's retries)."""
-
-    solver: optx.AbstractLeastSquaresSolver
-    rtol: float
-    atol: float
-    norm: Callable = eqx.field(static=True)
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        inner = self.solver.init(fn, y, args, options, f_struct, aux_struct, tags)
-        return inner, jnp.array(0, jnp.int32)
-
-    def step(self, fn, y, args, options, state, tags):
-        inner, count = state
-        y, inner, aux = self.solver.step(fn, y, args, options, inner, tags)
-        return y, (inner, count + 1), aux
-
-    def terminate(self, fn, y, args, options, state, tags):
-        inner, count = state
-        stop, result = self.solver.terminate(fn, y, args, options, inner, tags)
-        limit = (options or {}).get("step_limit")
-        if limit is None:  # optimistix's own `max_steps` alone
-            return stop, result
-        out = ~stop & (count >= limit)
-        return stop | out, optx.RESULTS.where(out, optx.RESULTS.nonlinear_max_steps_reached, result)
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return self.solver.postprocess(fn, y, aux, args, options, state[0], tags, result)
-
-
-def _solver(rtol, atol):
-    lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=NormalCholesky())
-    lm = eqx.tree_at(lambda s: s.search, lm, _TrustRegion())
-    return _StepLimit(lm, rtol, atol, lm.norm)
 
 
 def _residual(y, args):
@@ -136,6 +83,10 @@ def nonlinear(
     **Returns:** a `NonlinearResult` with the pose `R = R(q) R0`, `t = R(q)(t0 - c0) + c0 + L d`
     (exactly the start at `y = 0`).
     """
+    import optimistix as optx  # imported when first traced (see `_optimistix`)
+
+    from ._optimistix import lm_solver
+
     dtype = obs.camera.dtype
     wide = by_precision(dtype, f64=True, f32=False)
     rtol = (1e-8 if wide else 1e-5) if rtol is None else rtol
@@ -150,7 +101,7 @@ def nonlinear(
     limit = max_steps if step_limit is None else jnp.minimum(step_limit, max_steps)
     sol = optx.least_squares(
         _residual,
-        _solver(rtol, atol),
+        lm_solver(rtol, atol),
         jnp.zeros(6, dtype),
         args,
         options={"step_limit": jnp.asarray(limit, jnp.int32)},

@@ -45,6 +45,7 @@ from ..geometry._pose import Observations, Pose
 from ..solvers._components import (
     Mat3,
     Vec3,
+    degeneracy,
     mat_to_array,
     transpose_matvec,
     vec_to_array,
@@ -56,11 +57,12 @@ from ..solvers._kernel_linear import (
     matches_from_observations,
     pixel_error_kernel,
 )
-from ..solvers._kernel_p3p import degeneracy, p3p_components
+from ..solvers._kernel_p3p import p3p_components
 from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
-from ._mixed import _planar_partner, mixed_from_initial, mixed_from_initial_batch
+from ._mixed import mixed_from_initial, mixed_from_initial_batch
 from ._options import Options
+from ._planar import planar_partner
 from ._triplets import best_triplet, initial_poses, select_triplets, triplet_indices
 
 __all__ = [
@@ -247,7 +249,7 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
 
     # 5. the planar partner of the answer
     if options.planar_partner:
-        partner, flat = jax.vmap(_planar_partner)(obs, pose)
+        partner, flat = jax.vmap(planar_partner)(obs, pose)
         Rp, tp, other, _, status_p = linear_kernel(
             Mat3(*(partner.R[..., i, j] for i in range(3) for j in range(3))),
             Vec3(*(partner.t[..., i] for i in range(3))),

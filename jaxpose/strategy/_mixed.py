@@ -44,7 +44,7 @@ with few matches and noisy pixels: n = 4 leaves two residual degrees of freedom)
 - Planar partner: a plane is imaged nearly alike in two attitudes, its normal `n` or `n`
   reflected about the line of sight to its centroid (IPPE's two solutions), so every
   triplet's best root can lie in the basin of the wrong one. For a coplanar model (within
-  `FLAT_TOL`), the answer's partner pose (`_planar_partner`) runs steps 2-4 once per
+  `FLAT_TOL`), the answer's partner pose (`planar_partner`) runs steps 2-4 once per
   problem and replaces it when accepted with a lower error (`root == PARTNER_ROOT`). A
   model that is not coplanar skips it (the buffer loop runs no pass).
 
@@ -66,9 +66,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..geometry._numerics import masked_centroid
 from ..geometry._pose import Observations, Pose
-from ..geometry._rotation import rotvec_to_matrix
 from ..solvers._components import (
     Mat3,
     Vec3,
@@ -90,6 +88,7 @@ from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
 from ._jobs import Jobs, default_chunk, ranked, run_jobs
 from ._options import Options, resolve
+from ._planar import planar_partner
 from ._triplets import Initial, best_triplet, initial_poses
 
 __all__ = [
@@ -128,10 +127,6 @@ class MixedResult(NamedTuple):
     root: Int[Array, " T"]
 
 
-# Flatness below which a model counts as coplanar (planar partner start): RMS distance to
-# its best-fit plane over its RMS extent along the plane's narrower direction.
-FLAT_TOL = 1e-2
-
 # `MixedResult.root` of a pose that came from the planar partner start.
 PARTNER_ROOT = 4
 
@@ -142,43 +137,6 @@ LINEAR_PASS = 4096
 # Levenberg-Marquardt's iteration budget in the retries (second chance, planar partner),
 # in units of `max_steps`.
 PATIENCE = 4
-
-
-def _planar_partner(obs: Observations, pose: Pose) -> tuple[Pose, Array]:
-    """The planar-ambiguity partner of `pose` (one problem), and whether the model is
-    coplanar (within `FLAT_TOL`).
-
-    A plane seen from afar is imaged nearly alike in two attitudes: its normal `n` and the
-    normal reflected about the line of sight `v` to its centroid `p_c`,
-    `n' = 2 (n . v) v - n` (IPPE's two solutions). The partner is `pose` rotated about
-    `p_c` by the rotation `Q` taking `n` to `n'` (about `n x v`, twice their angle):
-    `R' = Q R`, `t' = Q (t - p_c) + p_c`. On the plane `Q` acts as the mirror through
-    the plane normal to `v` at `p_c`, which an orthographic view along `v` cannot tell
-    apart from the identity."""
-    dtype = pose.R.dtype
-    w = obs.mask.astype(dtype)
-    count = jnp.maximum(jnp.sum(w), 1)
-    centre = masked_centroid(obs.model, w)
-    X = (obs.model - centre[None, :]) * w[:, None]
-    evals, evecs = jnp.linalg.eigh(X.T @ X / count)  # ascending
-    flat = (evals[0] <= FLAT_TOL**2 * evals[1]) & (evals[1] > 0) & (jnp.sum(w) >= 4)
-    n = pose.R @ evecs[:, 0]
-    p_c = pose.R @ centre + pose.t
-    eye = jnp.finfo(dtype).eps ** 0.5
-    # Camera centre `o`: `C [o 1]^T = 0`.
-    o = -jnp.linalg.solve(obs.camera[:, :3], obs.camera[:, 3])
-    sight = p_c - o
-    v = sight / jnp.maximum(jnp.linalg.norm(sight), jnp.finfo(dtype).tiny)
-    n = jnp.where(jnp.dot(n, v) < 0, -n, n)  # angle to v in [0, pi/2]
-    axis = jnp.cross(n, v)
-    s = jnp.linalg.norm(axis)
-    angle = jnp.arctan2(s, jnp.dot(n, v))
-    big = s > eye
-    rotvec = jnp.where(big, 2 * angle * axis / jnp.where(big, s, 1), 2 * axis)
-    Q = rotvec_to_matrix(rotvec)
-    partner = Pose(Q @ pose.R, Q @ (pose.t - p_c) + p_c)
-    ok = flat & jnp.all(jnp.isfinite(partner.R)) & jnp.all(jnp.isfinite(partner.t))
-    return jax.tree.map(lambda a, b: jnp.where(ok, a, b), partner, pose), ok
 
 
 def _where_pose(pred, a: Pose, b: Pose) -> Pose:
@@ -408,7 +366,7 @@ def after_second_chance(
         b = jnp.arange(B)
         best, _ = jax.vmap(best_triplet)(jnp.where(given.usable, error, big), status)  # (B,)
         best = best.astype(jnp.int32)
-        partner, coplanar = jax.vmap(_planar_partner)(
+        partner, coplanar = jax.vmap(planar_partner)(
             given.obs, jax.tree.map(lambda x: x[b, best], pose)
         )
         p_need = coplanar & given.usable[b, best]

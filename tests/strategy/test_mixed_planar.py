@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose.strategy._mixed import _planar_partner
+from jaxpose.strategy._planar import planar_partner
 
 DATA = Path(__file__).parents[1] / "data" / "planar_mixed_reproducers.json"
 ABS_TOL = 1e-6  # px: at the optimum (the benchmark's criterion)
@@ -55,8 +55,8 @@ def test_planar_partner_is_an_involution(reproducers):
     obs = jp.observations(C, jnp.asarray(obj[0]), jnp.asarray(img[0]))
     R0 = jnp.asarray(cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))[0])
     pose = jp.Pose(R0, jnp.array([0.2, -0.1, 6.0]))
-    partner, flat = _planar_partner(obs, pose)
-    back, _ = _planar_partner(obs, partner)
+    partner, flat = planar_partner(obs, pose)
+    back, _ = planar_partner(obs, partner)
     assert bool(flat)
     assert not np.allclose(partner.R, pose.R, atol=1e-3)
     np.testing.assert_allclose(back.R, pose.R, atol=1e-9)
@@ -72,6 +72,6 @@ def test_planar_partner_not_for_a_solid_model(reproducers):
         jnp.asarray(bench.camera), jnp.asarray(bench.model_points), jnp.asarray(bench.image_points)
     )
     pose = jp.Pose(jnp.eye(3), jnp.zeros(3))
-    partner, flat = _planar_partner(obs, pose)
+    partner, flat = planar_partner(obs, pose)
     assert not bool(flat)
     np.testing.assert_array_equal(partner.R, pose.R)
