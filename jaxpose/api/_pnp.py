@@ -73,7 +73,9 @@ def _stages(options: Options) -> tuple[Options, Options | None]:
     """The programs an OpenCV-convention call runs: with the answer from the best roots
     (`refine`) and its fallback, first `best_of_roots` alone, then, only for problems it
     did not settle, the whole mixed algorithm (`refine=None`: what the fallback computes),
-    each compiled when first needed. Otherwise `options` alone."""
+    each compiled when first needed. Otherwise `options` alone. Both compute values only
+    (`derivative=False`: the numpy outputs carry no derivative)."""
+    options = dataclasses.replace(options, derivative=False)  # numpy out: values only
     if options.method != "mixed" or options.refine is None or not options.fallback:
         return options, None
     return (

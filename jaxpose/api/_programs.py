@@ -73,7 +73,7 @@ _OFF = {"", "0", "off", "false", "no", "none"}
 POINT_BUCKETS = (8, 16, 32, 64, 128, 256, 512, 1024)
 
 # The serialized program's header: a file from another layout is never unpickled as one.
-_MAGIC = b"jaxpose-program-1\n"
+_MAGIC = b"jaxpose-program-2\n"
 
 
 def bucket_points(n: int) -> int:
@@ -152,13 +152,20 @@ _RUNTIME_READY = False
 def _prepare_runtime() -> None:
     """Load what a deserialized program calls into: the CPU's LAPACK kernels are set up
     by JAX when it first lowers a linear-algebra operation, not when it loads a program
-    that uses them (which would crash). Lowering a tiny solve does it (once)."""
+    that uses them (which would crash). jaxlib's own initialisation does it (0.3 s);
+    should that entry point move, lowering a tiny solve does it too (1-2 s)."""
     global _RUNTIME_READY
-    if not _RUNTIME_READY:
+    if _RUNTIME_READY:
+        return
+    try:
+        from jaxlib import lapack
+
+        lapack._lapack.initialize()  # type: ignore[attr-defined]
+    except Exception:  # pragma: no cover - another jaxlib layout
         import jax.numpy as jnp
 
         jax.jit(jnp.linalg.solve).lower(jnp.eye(2), jnp.ones(2))
-        _RUNTIME_READY = True
+    _RUNTIME_READY = True
 
 
 def _signature(args) -> tuple:
@@ -203,10 +210,11 @@ class Program:
             data = path.read_bytes()
             if not data.startswith(_MAGIC):
                 return None
-            stored_key, payload, in_tree, out_tree = pickle.loads(data[len(_MAGIC) :])
+            stored_key, lapack, payload, in_tree, out_tree = pickle.loads(data[len(_MAGIC) :])
             if stored_key != key:
                 return None
-            _prepare_runtime()
+            if lapack:
+                _prepare_runtime()
             return deserialize_and_load(payload, in_tree, out_tree)
         except Exception:  # a broken or foreign file: compiled again and replaced
             return None
@@ -218,7 +226,8 @@ class Program:
             return
         try:
             payload, in_tree, out_tree = serialize(compiled)
-            data = _MAGIC + pickle.dumps((key, payload, in_tree, out_tree))
+            lapack = "lapack_" in compiled.as_text()  # calls LAPACK (see `_prepare_runtime`)
+            data = _MAGIC + pickle.dumps((key, lapack, payload, in_tree, out_tree))
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".part-")
             with os.fdopen(fd, "wb") as f:
                 f.write(data)

@@ -104,14 +104,15 @@ def solve(
     sobs = jax.lax.stop_gradient(obs)
     if options.method == "mixed" and options.refine is not None:
         found = answer(sobs, options)
-        return _not_finite(_finish_answer(obs, found), finite)
+        return _not_finite(_finish_answer(obs, found, options.derivative), finite)
     initial = _initial(obs, options)
     if options.method == "mixed":
         res = mixed_from_initial(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
     else:
         found = _per_triplet(sobs, initial, options)
-    return _not_finite(_finish(options.method, obs, initial.triplets, *found), finite)
+    finish = functools.partial(_finish, options.method, derivative=options.derivative)
+    return _not_finite(finish(obs, initial.triplets, *found), finite)
 
 
 @no_type_check
@@ -149,7 +150,8 @@ def solve_many(
     obs = jax.vmap(observations)(camera, model, image, mask)
     if options.method == "mixed" and options.refine is not None:
         found = answer_batch(jax.lax.stop_gradient(obs), options)
-        return jax.vmap(_not_finite)(jax.vmap(_finish_answer)(obs, found), finite)
+        finish = functools.partial(_finish_answer, derivative=options.derivative)
+        return jax.vmap(_not_finite)(jax.vmap(finish)(obs, found), finite)
     T = triplet_count(model.shape[1], options)
     initial = jax.lax.map(
         lambda o: _initial(o, options), obs, batch_size=max(1, min(B, CHUNK // T))
@@ -161,7 +163,9 @@ def solve_many(
     else:
         found = jax.vmap(lambda o, i: _per_triplet(o, i, options))(sobs, initial)
     return jax.vmap(_not_finite)(
-        jax.vmap(functools.partial(_finish, options.method))(obs, initial.triplets, *found),
+        jax.vmap(functools.partial(_finish, options.method, derivative=options.derivative))(
+            obs, initial.triplets, *found
+        ),
         finite,
     )
 
@@ -281,7 +285,9 @@ def _per_triplet(sobs: Observations, initial, options: Options):
     return out.pose, error, status
 
 
-def _finish(method, obs: Observations, triplets, poses: Pose, error, status) -> Solution:
+def _finish(
+    method, obs: Observations, triplets, poses: Pose, error, status, derivative: bool = True
+) -> Solution:
     """The answer from every triplet's outcome: the best accepted, polished (with the
     implicit derivative attached) for the optimising methods."""
     dtype = obs.camera.dtype
@@ -291,7 +297,7 @@ def _finish(method, obs: Observations, triplets, poses: Pose, error, status) -> 
     pose = jax.tree.map(lambda a, b: jnp.where(accepted, a, b), pose, Pose.identity(dtype))
     error = jnp.where(accepted, error[index], jnp.where(error[index] < big, error[index], 0))
     if method != "three_point":
-        pose = polish(obs, pose, accepted)
+        pose = polish(obs, pose, accepted, derivative)
         final = rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
         error = jnp.where(accepted, final, error)
     return Solution(
@@ -304,10 +310,18 @@ def _finish(method, obs: Observations, triplets, poses: Pose, error, status) -> 
     )
 
 
-def _finish_answer(obs: Observations, found: Answer) -> Solution:
+def _finish_answer(obs: Observations, found: Answer, derivative: bool = True) -> Solution:
     """`_finish` for a problem whose answer is already chosen (`jaxpose.strategy.answer`)."""
     pose = Pose(found.pose.R[None], found.pose.t[None])
-    return _finish("mixed", obs, found.triplet[None], pose, found.error[None], found.status[None])
+    return _finish(
+        "mixed",
+        obs,
+        found.triplet[None],
+        pose,
+        found.error[None],
+        found.status[None],
+        derivative,
+    )
 
 
 def _solve_rows(camera, model, image, mask, *, camera_batched, model_batched, options):

@@ -17,7 +17,7 @@ from jaxtyping import Array, Float
 
 from ..geometry._validate import no_type_check
 
-__all__ = ["cholesky_solve", "symmetric_pinv"]
+__all__ = ["cholesky_solve", "positive_definite_solve", "symmetric_pinv"]
 
 
 # `cholesky_solve` checks its arguments' shapes itself (a `ValueError` naming it): no
@@ -98,3 +98,54 @@ def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
     rank = jnp.sum(keep).astype(jnp.int32)
     positive = jnp.all(jnp.isfinite(lam)) & (rank == k) & jnp.all(lam > 0)
     return pinv, rank, positive
+
+
+def positive_definite_solve(
+    A: Float[Array, "k k"], b: Float[Array, " k"], rcond: float | None = None
+):
+    """`A^-1 b` for a small symmetric matrix, and whether `A` is positive definite, by the
+    unrolled Cholesky factorisation (no LAPACK call): `A` is equilibrated by its diagonal
+    as in `symmetric_pinv`, and counts as positive definite when every pivot exceeds
+    `rcond` (default `64 eps`) times the largest diagonal entry: the verdict of
+    `symmetric_pinv`'s eigenvalue test, except for matrices singular to rounding, which
+    either may call positive. Values only (no derivative flows).
+    Returns `(x, positive_definite)`; `x` is finite whatever `A`."""
+    A, b = jax.lax.stop_gradient(A), jax.lax.stop_gradient(b)
+    dtype = A.dtype
+    k = A.shape[0]
+    rcond = 64 * float(jnp.finfo(dtype).eps) if rcond is None else rcond
+    diag = jnp.diagonal(A)
+    ok = diag > 0
+    d = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, diag, 1)), 0)
+    Ae = A * d[:, None] * d[None, :]
+    Ae = 0.5 * (Ae + Ae.T)
+    pivots = []
+    L: list[list] = [[None] * k for _ in range(k)]
+    for j in range(k):
+        s = Ae[j, j]
+        for m in range(j):
+            s = s - L[j][m] * L[j][m]
+        pivots.append(s)
+        root = jnp.sqrt(jnp.where(s > 0, s, 1))
+        L[j][j] = root
+        for i in range(j + 1, k):
+            s_ij = Ae[i, j]
+            for m in range(j):
+                s_ij = s_ij - L[i][m] * L[j][m]
+            L[i][j] = s_ij / root
+    positive = jnp.all(ok) & jnp.all(jnp.stack(pivots) > rcond) & jnp.all(jnp.isfinite(Ae))
+    y: list = [None] * k
+    be = b * d
+    for i in range(k):
+        s = be[i]
+        for m in range(i):
+            s = s - L[i][m] * y[m]
+        y[i] = s / L[i][i]
+    x: list = [None] * k
+    for i in reversed(range(k)):
+        s = y[i]
+        for m in range(i + 1, k):
+            s = s - L[m][i] * x[m]
+        x[i] = s / L[i][i]
+    out = jnp.stack(x) * d
+    return jnp.where(positive & jnp.all(jnp.isfinite(out)), out, 0), positive

@@ -14,12 +14,14 @@ from jaxtyping import Array, Bool
 
 from ..geometry._pose import Observations, Pose
 from ..solvers._chart import chart_at, chart_pose, chart_residuals
-from ..solvers._linalg import symmetric_pinv
+from ..solvers._linalg import positive_definite_solve, symmetric_pinv
 
-__all__ = ["newton_step", "polish"]
+__all__ = ["newton_step", "newton_value_step", "polish"]
 
 
-def polish(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+def polish(
+    obs: Observations, pose: Pose, accepted: Bool[Array, ""], derivative: bool = True
+) -> Pose:
     """The answer, polished by Newton steps, with the implicit derivative attached.
 
     In the chart `xi = (w, u)` around the (gradient-free) answer `(R^, t^)`
@@ -45,9 +47,16 @@ def polish(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
     - `pose`: the answer (its derivative is ignored).
     - `accepted`: whether the answer was accepted.
 
+    - `derivative`: `False`: the same two steps for the value only
+      (`newton_value_step`: Cholesky instead of the pseudo-inverse, no LAPACK call, a
+      smaller program), for callers that take no derivative.
+
     **Returns:** the polished `Pose`.
     """
     sobs = jax.lax.stop_gradient(obs)
+    if not derivative:
+        start = newton_value_step(sobs, jax.lax.stop_gradient(pose), accepted)
+        return newton_value_step(sobs, start, accepted)
     start = newton_step(sobs, jax.lax.stop_gradient(pose), accepted)
     return newton_step(obs, jax.lax.stop_gradient(start), accepted)
 
@@ -74,4 +83,24 @@ def newton_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pos
     # decrease of a 1e-11 step.
     local = jnp.all(jnp.abs(value) < 1e-3) & jnp.all(jnp.isfinite(value))
     xi = jnp.where(positive & local, value, 0) + (step - value)
+    return chart_pose(jnp.where(accepted, xi, 0), chart)
+
+
+def newton_value_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+    """`newton_step`'s value without its derivative: the same guarded step, `H` solved by
+    `positive_definite_solve` (whose positive-definiteness test matches
+    `symmetric_pinv`'s up to rounding)."""
+    obs, pose = jax.lax.stop_gradient(obs), jax.lax.stop_gradient(pose)
+    chart = chart_at(pose, obs)
+    zero = jnp.zeros(6, pose.t.dtype)
+
+    def cost(xi):
+        r = chart_residuals(xi, chart, obs)
+        return 0.5 * jnp.sum(r * r)
+
+    g = jax.grad(cost)(zero)
+    H = jax.hessian(cost)(zero)
+    step, positive = positive_definite_solve(H, -g)
+    local = jnp.all(jnp.abs(step) < 1e-3) & jnp.all(jnp.isfinite(step))
+    xi = jnp.where(positive & local, step, 0)
     return chart_pose(jnp.where(accepted, xi, 0), chart)

@@ -134,6 +134,10 @@ class Options:
       (status of its best candidate) and run nothing more.
     - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
       `None`: a size that grows with the batch, see `mixed_from_initial_batch`).
+    - `derivative`: attach the implicit derivative to the answer (default `True`; see
+      `jaxpose.strategy._implicit.polish`); `False`: the same polish for the value only,
+      a smaller program without LAPACK calls (the OpenCV-convention entry points, whose
+      numpy outputs carry no derivative, use it).
     """
 
     method: str = "mixed"
@@ -152,6 +156,7 @@ class Options:
     spread_points: int | None = 6
     fallback: bool = True
     chunk: int | None = None
+    derivative: bool = True
 
     def __post_init__(self):
         _check_choice("method", self.method, METHODS)
@@ -162,7 +167,7 @@ class Options:
         _check_int("linear_iterations", self.linear_iterations, 1)
         _check_int("nonlinear_budget", self.nonlinear_budget, 0, optional=True)
         _check_int("second_chance_budget", self.second_chance_budget, 0)
-        for name in ("planar_partner", "fallback"):
+        for name in ("planar_partner", "fallback", "derivative"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         _check_int("max_steps", self.max_steps, 1)

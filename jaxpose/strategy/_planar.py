@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike, Float
 
 from ..geometry._numerics import masked_centroid
 from ..geometry._pose import Observations, Pose
 from ..geometry._rotation import rotvec_to_matrix
 
-__all__ = ["FLAT_TOL", "planar_partner"]
+__all__ = ["FLAT_TOL", "camera_centre", "plane_fit", "planar_partner"]
 
 # Flatness below which a model counts as coplanar (planar partner start): RMS distance to
 # its best-fit plane over its RMS extent along the plane's narrower direction.
@@ -35,13 +35,12 @@ def planar_partner(obs: Observations, pose: Pose) -> tuple[Pose, Array]:
     count = jnp.maximum(jnp.sum(w), 1)
     centre = masked_centroid(obs.model, w)
     X = (obs.model - centre[None, :]) * w[:, None]
-    evals, evecs = jnp.linalg.eigh(X.T @ X / count)  # ascending
-    flat = (evals[0] <= FLAT_TOL**2 * evals[1]) & (evals[1] > 0) & (jnp.sum(w) >= 4)
-    n = pose.R @ evecs[:, 0]
+    smallest, middle, normal = plane_fit(X.T @ X / count)
+    flat = (smallest <= FLAT_TOL**2 * middle) & (middle > 0) & (jnp.sum(w) >= 4)
+    n = pose.R @ normal
     p_c = pose.R @ centre + pose.t
     eye = jnp.finfo(dtype).eps ** 0.5
-    # Camera centre `o`: `C [o 1]^T = 0`.
-    o = -jnp.linalg.solve(obs.camera[:, :3], obs.camera[:, 3])
+    o = camera_centre(obs.camera)
     sight = p_c - o
     v = sight / jnp.maximum(jnp.linalg.norm(sight), jnp.finfo(dtype).tiny)
     n = jnp.where(jnp.dot(n, v) < 0, -n, n)  # angle to v in [0, pi/2]
@@ -54,3 +53,44 @@ def planar_partner(obs: Observations, pose: Pose) -> tuple[Pose, Array]:
     partner = Pose(Q @ pose.R, Q @ (pose.t - p_c) + p_c)
     ok = flat & jnp.all(jnp.isfinite(partner.R)) & jnp.all(jnp.isfinite(partner.t))
     return jax.tree.map(lambda a, b: jnp.where(ok, a, b), partner, pose), ok
+
+
+def camera_centre(camera: Float[ArrayLike, "3 4"]) -> Float[Array, " 3"]:
+    """The centre `o` of a camera, `C [o 1]^T = 0`: `-M^-1 c4` for `C = [M | c4]`, by
+    cross products of the rows of `M` (no LAPACK call)."""
+    camera = jnp.asarray(camera)
+    r1, r2, r3 = camera[0, :3], camera[1, :3], camera[2, :3]
+    c1, c2, c3 = jnp.cross(r2, r3), jnp.cross(r3, r1), jnp.cross(r1, r2)
+    det = jnp.dot(r1, c1)
+    safe = jnp.where(det != 0, det, 1)
+    return -(camera[0, 3] * c1 + camera[1, 3] * c2 + camera[2, 3] * c3) / safe
+
+
+def plane_fit(S: Float[ArrayLike, "3 3"]) -> tuple[Array, Array, Float[Array, " 3"]]:
+    """The two smallest eigenvalues of a symmetric positive semi-definite 3x3 matrix
+    (a scatter matrix) and a unit eigenvector of the smallest (the normal of the best-fit
+    plane), in closed form: the eigenvalues by the trigonometric solution of the
+    characteristic cubic, the vector as the longest cross product of two rows of
+    `S - lambda I` (no LAPACK call; `jnp.linalg.eigh`'s values up to rounding)."""
+    S = jnp.asarray(S)
+    dtype = S.dtype
+    q = jnp.trace(S) / 3
+    off = S[0, 1] ** 2 + S[0, 2] ** 2 + S[1, 2] ** 2
+    p2 = (S[0, 0] - q) ** 2 + (S[1, 1] - q) ** 2 + (S[2, 2] - q) ** 2 + 2 * off
+    p = jnp.sqrt(p2 / 6)
+    round_ = p > jnp.finfo(dtype).tiny ** 0.5  # else: a multiple of the identity
+    B = (S - q * jnp.eye(3, dtype=dtype)) / jnp.where(round_, p, 1)
+    r = jnp.clip(jnp.dot(B[0], jnp.cross(B[1], B[2])) / 2, -1, 1)  # det(B) / 2
+    phi = jnp.arccos(r) / 3  # in [0, pi/3]: cos(phi) >= cos(phi - 2pi/3) >= cos(phi + 2pi/3)
+    largest = q + 2 * p * jnp.cos(phi)
+    smallest = q + 2 * p * jnp.cos(phi + 2 * jnp.pi / 3)
+    middle = 3 * q - largest - smallest
+    smallest, middle = jnp.where(round_, smallest, q), jnp.where(round_, middle, q)
+    A = S - smallest * jnp.eye(3, dtype=dtype)
+    crosses = jnp.stack([jnp.cross(A[0], A[1]), jnp.cross(A[0], A[2]), jnp.cross(A[1], A[2])])
+    lengths = jnp.sum(crosses**2, axis=1)
+    best = crosses[jnp.argmax(lengths)]
+    length = jnp.sqrt(jnp.max(lengths))
+    fallback = jnp.array([0, 0, 1], dtype)
+    normal = jnp.where(length > 0, best / jnp.where(length > 0, length, 1), fallback)
+    return smallest, middle, normal

@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 
 import cv2
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -75,3 +76,27 @@ def test_planar_partner_not_for_a_solid_model(reproducers):
     partner, flat = planar_partner(obs, pose)
     assert not bool(flat)
     np.testing.assert_array_equal(partner.R, pose.R)
+
+
+def test_plane_fit_and_camera_centre_match_lapack():
+    """The closed forms the planar partner uses (no LAPACK call) against numpy's
+    eigen-decomposition and solve, on flat, thin and round point clouds."""
+    from jaxpose.strategy._planar import camera_centre, plane_fit
+
+    rng = np.random.default_rng(11)
+    fit = jax.jit(plane_fit)
+    for i in range(300):
+        X = rng.normal(size=(20, 3)) * np.array([1.0, rng.uniform(0.1, 1), rng.uniform(0, 1)])
+        if i % 3 == 0:
+            X[:, 2] = 0
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        S = (X @ Q.T).T @ (X @ Q.T) / 20
+        smallest, middle, normal = fit(S)
+        w, v = np.linalg.eigh(S)
+        assert abs(smallest - w[0]) <= 1e-9 * w[2] and abs(middle - w[1]) <= 1e-9 * w[2]
+        if w[1] - w[0] > 1e-6 * w[2]:
+            assert 1 - abs(np.dot(np.asarray(normal), v[:, 0])) < 1e-9
+        C = rng.normal(size=(3, 4))
+        np.testing.assert_allclose(C @ np.append(camera_centre(C), 1), 0, atol=1e-12)
+    smallest, middle, normal = fit(2 * np.eye(3))  # round: any unit normal
+    assert smallest == middle == 2 and abs(np.linalg.norm(normal) - 1) < 1e-15
