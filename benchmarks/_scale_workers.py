@@ -170,8 +170,8 @@ def single_worker(spec: dict) -> dict:
 def batch_worker(spec: dict) -> dict:
     """`solve_pnp_batch` over `spec["B"]` problems (n = 16), chunked by `chunk_size`."""
     _setup_jax(spec.get("cache_dir"))
-    from jaxpose.api._batch import _compiled
-    from jaxpose.api._pnp import _batched_opencv
+    from jaxpose.api._batch import _compiled, _tail_size
+    from jaxpose.api._pnp import CHUNK, MIN_CHUNK, _batched_opencv, _pad_points, _stages
 
     B, chunk_size, budget = spec["B"], spec["chunk_size"], spec["triplet_budget"]
     method, n = spec.get("method", "mixed"), spec.get("n", 16)
@@ -191,18 +191,20 @@ def batch_worker(spec: dict) -> dict:
             call, warmup=0, repeat=spec.get("repeat", 3), budget_s=spec.get("budget_s", 10)
         )
     rss1 = _maxrss_mb()
-    # The program of one chunk (already compiled: this lowering hits the in-memory cache).
-    chunk = min(B, chunk_size or B)
-    dev = jax.devices()[0]
+    # The program of one chunk (already built: the program's in-process memo returns it),
+    # of the shape `solve_pnp_batch` runs: by default the bucket of the batch (a chunk of
+    # `CHUNK`, or the smallest `MIN_CHUNK * 2^k` holding a smaller batch).
+    if chunk_size is None:
+        chunk = CHUNK if B >= CHUNK else _tail_size(B, CHUNK, MIN_CHUNK, 1)
+    else:
+        chunk = min(B, chunk_size)
     watch = Stopwatch()
     with jax.enable_x64(True):
-        options = jp.Options(method=method, triplet_budget=budget)
-        prog = _compiled(_batched_opencv, (options,), (), None, 1, 2)
-        compiled = prog.lower(
-            jax.device_put(K, dev),
-            jax.device_put(obj[:chunk], dev),
-            jax.device_put(img[:chunk], dev),
-        ).compile()
+        options = _stages(jp.Options(method=method, triplet_budget=budget))[0]
+        prog = _compiled(_batched_opencv, (options,), (), None, 1, 3)
+        rows = np.arange(chunk) % B
+        o, i, m = _pad_points(obj[rows].astype(float), img[rows].astype(float))
+        compiled = prog.executable(*(jnp.asarray(a) for a in (K, o, i, m)))
     analysis_s = watch.seconds
     return {
         "B": B,

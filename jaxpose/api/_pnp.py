@@ -219,9 +219,9 @@ def solve_pnp_batch(
                 (K,),
                 (obj, img, mask),
                 static=(options,),
-                chunk_size=chunk_size or largest,
+                chunk_size=largest if chunk_size is None else chunk_size,
                 devices=devices,
-                min_tail=None if chunk_size else MIN_CHUNK,
+                min_tail=MIN_CHUNK if chunk_size is None else None,
             )
 
         ok, rvecs, tvecs = run(obj, img, mask, first, CHUNK)
