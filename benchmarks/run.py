@@ -19,6 +19,7 @@ at the end when accuracy and scale ran too), writes `benchmarks/results/speed.js
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -180,6 +181,10 @@ def main(argv: list[str] | None = None) -> int:
         "--sections", nargs="+", default=None, help="speed sections to run (default: all)"
     )
     args = parser.parse_args(argv)
+    # Compile times are figures here: jaxpose's program cache stays off (in this process
+    # and the workers it spawns), so that a first call compiles (benchmarks/startup.py
+    # measures the cache).
+    os.environ["JAXPOSE_CACHE_DIR"] = "off"
     jax.config.update("jax_enable_x64", True)
     from benchmarks import accuracy, scale, speed
 

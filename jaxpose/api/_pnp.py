@@ -159,8 +159,8 @@ def solve_pnp(
     first, then = _stages(options)
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     with jax.enable_x64(True):
-        args = (jnp.asarray(K, jnp.float64), jnp.asarray(obj), jnp.asarray(img))
-        args += (jnp.asarray(mask),)
+        # (`device_put` of float64 numpy: no conversion program to compile on a first call)
+        args = tuple(jax.device_put(a) for a in (np.asarray(K, np.float64), obj, img, mask))
         ok, rvec, tvec = program(_solve_opencv, first)(*args)
         if then is not None and not bool(ok):
             ok, rvec, tvec = program(_solve_opencv, then)(*args)

@@ -4,7 +4,6 @@ methods, with Table 1, the at-optimum shares and Figures 3-4."""
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..api._programs import program
 from ..geometry._errors import pose_error
 from ..geometry._pose import Pose, observations
 from ..solvers._linear import linear
@@ -128,8 +128,9 @@ class ExperimentResult:
         }
 
 
-@functools.partial(jax.jit, static_argnames=("threshold",))
 def _four_methods(camera, model, image, threshold):
+    """The four methods on every triplet (the program of `run_experiment`, kept on disk by
+    `jaxpose.api._programs`, so that a second run loads it)."""
     obs = observations(camera, model, image)
     initial = initial_poses(obs, options=_EVERY_TRIPLET)
 
@@ -188,11 +189,10 @@ def run_experiment(scene: Scene, *, threshold: float | None = None) -> Experimen
     `None` is the adaptive one (see `jaxpose.mixed`)."""
     n = len(scene.model_points)
     dtype = jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32
-    out = _four_methods(
+    out = program(_four_methods, threshold)(
         jnp.asarray(scene.camera, dtype),
         jnp.asarray(scene.model_points, dtype),
         jnp.asarray(scene.image_points, dtype),
-        threshold,
     )
     pose_err, err, status, initial_status, mix = jax.tree.map(np.asarray, out)
     return ExperimentResult(
