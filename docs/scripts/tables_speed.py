@@ -306,8 +306,8 @@ def startup(results: Path) -> str:
         if "calls" in r:
             parts.append(
                 f"`{key}`: import {duration(r['import_s'])}, first `solve_pnp` "
-                f"{duration(r['calls'][0]['s'])} ({r['compiled']} programs compiled, "
-                f"{r['loaded']} loaded from the cache)."
+                f"{duration(r['calls'][0]['s'])} (programs compiled: {r['compiled']}, "
+                f"loaded from the cache: {r['loaded']})."
             )
     command = "python -m benchmarks.startup" + (" --quick" if "quick" in name else "")
     return "\n\n".join(parts) + "\n\n" + caption(d, name, command=command)
