@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -128,7 +127,6 @@ def measure(quick: bool = False) -> dict:
             figures["new_n"] = new_n["calls"][1]["s"]
         if not quick:
             demo_cache = Path(tmp) / "demo-cache"
-            shutil.rmtree(demo_cache, ignore_errors=True)
             first = _demo(demo_cache, Path(tmp) / "out1")
             second = _demo(demo_cache, Path(tmp) / "out2")
             res["demo"] = {"first_s": first, "second_s": second}

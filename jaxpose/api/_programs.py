@@ -224,6 +224,7 @@ class Program:
 
         if path is None:
             return
+        tmp = None
         try:
             payload, in_tree, out_tree = serialize(compiled)
             lapack = "lapack_" in compiled.as_text()  # calls LAPACK (see `_prepare_runtime`)
@@ -233,8 +234,9 @@ class Program:
                 f.write(data)
             os.replace(tmp, path)  # atomic: a reader sees the whole file or none
         except Exception:  # a cache that cannot be written costs speed, never an answer
-            with contextlib.suppress(Exception):
-                os.unlink(tmp)  # type: ignore[possibly-undefined]
+            if tmp is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
 
     def executable(self, *args):
         """The compiled program for `args` (loaded from disk, or compiled and stored)."""

@@ -39,12 +39,23 @@ def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array
     eps = jnp.finfo(dtype).eps
     scale = jnp.trace(A) / n
     floor = jnp.where(scale > 0, eps * scale, jnp.finfo(dtype).tiny)
+    L, inv, _ = _factor(A, floor)
+    return _substitute(L, inv, b).astype(dtype)
+
+
+def _factor(A, floor):
+    """The unrolled Cholesky factorisation of `A`: `(L, 1 / diag(L), pivots)`, each pivot
+    (the square of `L`'s diagonal entry before any flooring) raised to `floor` when below
+    it or not finite."""
+    n = A.shape[-1]
     L: list[list] = [[None] * n for _ in range(n)]
     inv: list = [None] * n
+    pivots: list = [None] * n
     for j in range(n):
         s = A[j, j]
         for k in range(j):
             s = s - L[j][k] * L[j][k]
+        pivots[j] = s
         s = jnp.where(jnp.isfinite(s), s, floor)
         d = jnp.sqrt(jnp.maximum(s, floor))
         inv[j] = 1 / d
@@ -54,6 +65,12 @@ def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array
             for k in range(j):
                 s = s - L[i][k] * L[j][k]
             L[i][j] = s * inv[j]
+    return L, inv, pivots
+
+
+def _substitute(L, inv, b) -> Array:
+    """`(L L^T)^-1 b` from `_factor`'s `L` and `inv`: forward, then back substitution."""
+    n = len(inv)
     y: list = [None] * n
     for i in range(n):
         s = b[i]
@@ -66,7 +83,16 @@ def cholesky_solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array
         for k in range(i + 1, n):
             s = s - L[k][i] * x[k]
         x[i] = s * inv[i]
-    return jnp.stack(x).astype(dtype)
+    return jnp.stack(x)
+
+
+def _equilibrate(A):
+    """`(D A D, diag(D))` symmetrised, `D = diag(|A_ii|)^(-1/2)` (zero where `A_ii = 0`)."""
+    diag = jnp.abs(jnp.diagonal(A))
+    ok = diag > 0
+    d = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, diag, 1)), 0)
+    Ae = A * d[:, None] * d[None, :]
+    return 0.5 * (Ae + Ae.T), d
 
 
 def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
@@ -83,11 +109,7 @@ def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
     dtype = A.dtype
     k = A.shape[0]
     rcond = 64 * float(jnp.finfo(dtype).eps) if rcond is None else rcond
-    diag = jnp.abs(jnp.diagonal(A))
-    ok = diag > 0
-    d = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, diag, 1)), 0)
-    Ae = A * d[:, None] * d[None, :]
-    Ae = 0.5 * (Ae + Ae.T)
+    Ae, d = _equilibrate(A)
     lam, V = jnp.linalg.eigh(Ae)
     cutoff = rcond * jnp.max(jnp.abs(lam))
     keep = (jnp.abs(lam) > cutoff) & (jnp.abs(lam) > jnp.finfo(dtype).tiny)
@@ -112,40 +134,10 @@ def positive_definite_solve(
     Returns `(x, positive_definite)`; `x` is finite whatever `A`."""
     A, b = jax.lax.stop_gradient(A), jax.lax.stop_gradient(b)
     dtype = A.dtype
-    k = A.shape[0]
     rcond = 64 * float(jnp.finfo(dtype).eps) if rcond is None else rcond
-    diag = jnp.diagonal(A)
-    ok = diag > 0
-    d = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, diag, 1)), 0)
-    Ae = A * d[:, None] * d[None, :]
-    Ae = 0.5 * (Ae + Ae.T)
-    pivots = []
-    L: list[list] = [[None] * k for _ in range(k)]
-    for j in range(k):
-        s = Ae[j, j]
-        for m in range(j):
-            s = s - L[j][m] * L[j][m]
-        pivots.append(s)
-        root = jnp.sqrt(jnp.where(s > 0, s, 1))
-        L[j][j] = root
-        for i in range(j + 1, k):
-            s_ij = Ae[i, j]
-            for m in range(j):
-                s_ij = s_ij - L[i][m] * L[j][m]
-            L[i][j] = s_ij / root
-    positive = jnp.all(ok) & jnp.all(jnp.stack(pivots) > rcond) & jnp.all(jnp.isfinite(Ae))
-    y: list = [None] * k
-    be = b * d
-    for i in range(k):
-        s = be[i]
-        for m in range(i):
-            s = s - L[i][m] * y[m]
-        y[i] = s / L[i][i]
-    x: list = [None] * k
-    for i in reversed(range(k)):
-        s = y[i]
-        for m in range(i + 1, k):
-            s = s - L[m][i] * x[m]
-        x[i] = s / L[i][i]
-    out = jnp.stack(x) * d
+    Ae, d = _equilibrate(A)
+    L, inv, pivots = _factor(Ae, jnp.finfo(dtype).tiny)
+    positive = jnp.all(jnp.diagonal(A) > 0) & jnp.all(jnp.stack(pivots) > rcond)
+    positive = positive & jnp.all(jnp.isfinite(Ae))
+    out = _substitute(L, inv, b * d) * d
     return jnp.where(positive & jnp.all(jnp.isfinite(out)), out, 0), positive

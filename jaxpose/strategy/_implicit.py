@@ -16,7 +16,7 @@ from ..geometry._pose import Observations, Pose
 from ..solvers._chart import chart_at, chart_pose, chart_residuals
 from ..solvers._linalg import positive_definite_solve, symmetric_pinv
 
-__all__ = ["newton_step", "newton_value_step", "polish"]
+__all__ = ["newton_step", "polish"]
 
 
 def polish(
@@ -48,22 +48,25 @@ def polish(
     - `accepted`: whether the answer was accepted.
 
     - `derivative`: `False`: the same two steps for the value only
-      (`newton_value_step`: Cholesky instead of the pseudo-inverse, no LAPACK call, a
-      smaller program), for callers that take no derivative.
+      (`newton_step(..., derivative=False)`: Cholesky instead of the pseudo-inverse, no
+      LAPACK call, a smaller program), for callers that take no derivative.
 
     **Returns:** the polished `Pose`.
     """
     sobs = jax.lax.stop_gradient(obs)
-    if not derivative:
-        start = newton_value_step(sobs, jax.lax.stop_gradient(pose), accepted)
-        return newton_value_step(sobs, start, accepted)
-    start = newton_step(sobs, jax.lax.stop_gradient(pose), accepted)
-    return newton_step(obs, jax.lax.stop_gradient(start), accepted)
+    start = newton_step(sobs, jax.lax.stop_gradient(pose), accepted, derivative)
+    target = obs if derivative else sobs
+    return newton_step(target, jax.lax.stop_gradient(start), accepted, derivative)
 
 
-def newton_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
+def newton_step(
+    obs: Observations, pose: Pose, accepted: Bool[Array, ""], derivative: bool = True
+) -> Pose:
     """One guarded Newton step of Eq. 8 from `pose` (no derivative w.r.t. `pose`); its
-    derivative w.r.t. `obs` is the implicit one (see `polish`)."""
+    derivative w.r.t. `obs` is the implicit one (see `polish`). `derivative=False`: the
+    value alone, `H` solved by `positive_definite_solve` (no LAPACK call; its
+    positive-definiteness test is `symmetric_pinv`'s but for matrices singular to
+    rounding)."""
     sobs = jax.lax.stop_gradient(obs)
     chart = chart_at(pose, sobs)
     zero = jnp.zeros(6, pose.t.dtype)
@@ -72,10 +75,13 @@ def newton_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pos
         r = chart_residuals(xi, chart, o)
         return 0.5 * jnp.sum(r * r)
 
-    g = jax.grad(cost)(zero, obs)
     H = jax.hessian(cost)(zero, sobs)
-    H_inv, _, positive = symmetric_pinv(H)
-    step = -(H_inv @ g)
+    if derivative:
+        g = jax.grad(cost)(zero, obs)
+        H_inv, _, positive = symmetric_pinv(H)
+        step = -(H_inv @ g)
+    else:
+        step, positive = positive_definite_solve(H, -jax.grad(cost)(zero, sobs))
     value = jax.lax.stop_gradient(step)
     # Taken only within the quadratic convergence region of a minimum: H positive definite
     # (so the step descends) and a step below 1e-3 (rad, object radii). The cost itself is
@@ -83,24 +89,4 @@ def newton_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pos
     # decrease of a 1e-11 step.
     local = jnp.all(jnp.abs(value) < 1e-3) & jnp.all(jnp.isfinite(value))
     xi = jnp.where(positive & local, value, 0) + (step - value)
-    return chart_pose(jnp.where(accepted, xi, 0), chart)
-
-
-def newton_value_step(obs: Observations, pose: Pose, accepted: Bool[Array, ""]) -> Pose:
-    """`newton_step`'s value without its derivative: the same guarded step, `H` solved by
-    `positive_definite_solve` (whose positive-definiteness test matches
-    `symmetric_pinv`'s up to rounding)."""
-    obs, pose = jax.lax.stop_gradient(obs), jax.lax.stop_gradient(pose)
-    chart = chart_at(pose, obs)
-    zero = jnp.zeros(6, pose.t.dtype)
-
-    def cost(xi):
-        r = chart_residuals(xi, chart, obs)
-        return 0.5 * jnp.sum(r * r)
-
-    g = jax.grad(cost)(zero)
-    H = jax.hessian(cost)(zero)
-    step, positive = positive_definite_solve(H, -g)
-    local = jnp.all(jnp.abs(step) < 1e-3) & jnp.all(jnp.isfinite(step))
-    xi = jnp.where(positive & local, step, 0)
     return chart_pose(jnp.where(accepted, xi, 0), chart)
