@@ -25,6 +25,7 @@ from ..geometry._validate import (
     as_dist_coeffs,
     as_intrinsics,
     as_matching,
+    as_point_batch,
     as_points,
     no_type_check,
 )
@@ -102,18 +103,13 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
         img = as_points(image_points, "image_points", 2, min_count=3)
         as_matching(obj, img)
         return K, obj, undistort_pixels(img, K, dist)
-    img = _read_array(image_points, "image_points")
-    if img.ndim != 3 or img.shape[-1] != 2:
-        raise ValueError(f"image_points must have shape (B, n, 2), got {img.shape}")
+    img = as_point_batch(image_points, "image_points", 2, min_count=3)
     B, n = img.shape[:2]
-    if B == 0:
-        raise ValueError("image_points must hold at least one problem, got an empty batch")
-    img = np.stack([as_points(x, "image_points", 2, min_count=3) for x in img])
     obj = _read_array(object_points, "object_points")
     if obj.ndim == 2:
         obj = np.broadcast_to(as_points(obj, "object_points", 3, min_count=3), (B, *obj.shape))
     elif obj.ndim == 3 and obj.shape[0] == B:
-        obj = np.stack([as_points(x, "object_points", 3, min_count=3) for x in obj])
+        obj = as_point_batch(obj, "object_points", 3, min_count=3)
     else:
         raise ValueError(
             f"object_points must have shape (n, 3) or (B, n, 3) with B = {B}, got {obj.shape}"
@@ -123,7 +119,7 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
             f"object_points has {obj.shape[1]} points per problem but image_points has {n}"
         )
     if dist is not None:
-        img = np.stack([undistort_pixels(x, K, dist) for x in img])
+        img = np.asarray(undistort_pixels(img.reshape(-1, 2), K, dist)).reshape(img.shape)
     return K, obj, img
 
 

@@ -255,7 +255,7 @@ class Program:
             if exe is not None:
                 self.loaded += 1
             else:
-                exe = self._jit.lower(*args).compile()
+                exe = _compile(self._jit.lower(*args), fresh=path is not None)
                 self.compiled += 1
                 self._store(path, key, exe)
             self._memo[signature] = exe
@@ -263,6 +263,21 @@ class Program:
 
     def __call__(self, *args):
         return self.executable(*args)(*args)
+
+
+def _compile(lowered, fresh: bool):
+    """`lowered.compile()`; `fresh`: bypassing JAX's persistent compilation cache (when
+    one is configured). An executable that cache hands back serializes without its
+    machine code on the CPU (jax 0.10: the stored program, once loaded, fails with
+    "Function ... not found"), so a program that will be stored is always compiled."""
+    if not fresh:
+        return lowered.compile()
+    try:
+        from jax._src.config import enable_compilation_cache
+    except ImportError:  # pragma: no cover - a jax without the switch
+        return lowered.compile()
+    with enable_compilation_cache(False):
+        return lowered.compile()
 
 
 def program_name(fn: Callable, static: tuple = (), keywords: tuple = ()) -> str:

@@ -19,7 +19,7 @@ from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
 from ..solvers._residuals import in_front, pixel_residuals, rms, rounding_level
 from ..solvers._status import Status
-from ..strategy._best import Answer, answer, answer_batch
+from ..strategy._best import Answer, answer, answer_batch, settle_batch
 from ..strategy._implicit import polish
 from ..strategy._jobs import CHUNK
 from ..strategy._mixed import mixed_from_initial, mixed_from_initial_batch
@@ -104,6 +104,9 @@ def solve(
     sobs = jax.lax.stop_gradient(obs)
     if options.method == "mixed" and options.refine is not None:
         found = answer(sobs, options)
+        if not options.derivative:
+            one = jax.tree.map(lambda a: a[None], (sobs, found))
+            found = jax.tree.map(lambda a: a[0], settle_batch(*one))
         return _not_finite(_finish_answer(obs, found, options.derivative), finite)
     initial = _initial(obs, options)
     if options.method == "mixed":
@@ -150,6 +153,8 @@ def solve_many(
     obs = jax.vmap(observations)(camera, model, image, mask)
     if options.method == "mixed" and options.refine is not None:
         found = answer_batch(jax.lax.stop_gradient(obs), options)
+        if not options.derivative:
+            found = settle_batch(jax.lax.stop_gradient(obs), found)
         finish = functools.partial(_finish_answer, derivative=options.derivative)
         return jax.vmap(_not_finite)(jax.vmap(finish)(obs, found), finite)
     T = triplet_count(model.shape[1], options)
@@ -286,10 +291,18 @@ def _per_triplet(sobs: Observations, initial, options: Options):
 
 
 def _finish(
-    method, obs: Observations, triplets, poses: Pose, error, status, derivative: bool = True
+    method,
+    obs: Observations,
+    triplets,
+    poses: Pose,
+    error,
+    status,
+    derivative: bool = True,
+    polished: bool = False,
 ) -> Solution:
     """The answer from every triplet's outcome: the best accepted, polished (with the
-    implicit derivative attached) for the optimising methods."""
+    implicit derivative attached) for the optimising methods unless `polished` (values
+    only, finished by `settle_batch`)."""
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     index, accepted = best_triplet(error, status)
@@ -297,7 +310,8 @@ def _finish(
     pose = jax.tree.map(lambda a, b: jnp.where(accepted, a, b), pose, Pose.identity(dtype))
     error = jnp.where(accepted, error[index], jnp.where(error[index] < big, error[index], 0))
     if method != "three_point":
-        pose = polish(obs, pose, accepted, derivative)
+        if not polished:
+            pose = polish(obs, pose, accepted, derivative)
         final = rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
         error = jnp.where(accepted, final, error)
     return Solution(
@@ -311,7 +325,9 @@ def _finish(
 
 
 def _finish_answer(obs: Observations, found: Answer, derivative: bool = True) -> Solution:
-    """`_finish` for a problem whose answer is already chosen (`jaxpose.strategy.answer`)."""
+    """`_finish` for a problem whose answer is already chosen (`jaxpose.strategy.answer`);
+    `derivative=False`: the answer is already settled (`settle_batch`), not polished
+    again."""
     pose = Pose(found.pose.R[None], found.pose.t[None])
     return _finish(
         "mixed",
@@ -321,6 +337,7 @@ def _finish_answer(obs: Observations, found: Answer, derivative: bool = True) ->
         found.error[None],
         found.status[None],
         derivative,
+        polished=not derivative,
     )
 
 

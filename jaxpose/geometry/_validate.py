@@ -28,6 +28,7 @@ __all__ = [
     "as_dist_coeffs",
     "as_intrinsics",
     "as_matching",
+    "as_point_batch",
     "as_points",
     "check_problem",
 ]
@@ -103,6 +104,21 @@ def as_points(x: object, name: str, dim: int, *, min_count: int = 1) -> np.ndarr
         )
     if arr.shape[0] < min_count:
         raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[0]}")
+    _check_finite(arr, name)
+    return arr
+
+
+def as_point_batch(x: object, name: str, dim: int, *, min_count: int = 1) -> np.ndarray:
+    """`as_points` for a batch of problems of equal size: shape `(B, n, dim)`, `B >= 1`,
+    `n >= min_count`, checked at once (no loop over the problems). Returns float32 if
+    given float32, else float64; `ValueError` naming `name` as `as_points`."""
+    arr = _as_real_array(x, name)
+    if arr.ndim != 3 or arr.shape[2] != dim:
+        raise ValueError(f"{name} must have shape (B, n, {dim}), got {arr.shape}")
+    if arr.shape[0] == 0:
+        raise ValueError(f"{name} must hold at least one problem, got an empty batch")
+    if arr.shape[1] < min_count:
+        raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[1]}")
     _check_finite(arr, name)
     return arr
 

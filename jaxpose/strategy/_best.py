@@ -6,8 +6,8 @@ every triplet and Levenberg-Marquardt wherever it fails; to find the answer it i
 to
 
 1. choose the triplets: those of the `Options.spread_points` matches farthest apart in
-   the image (`spread_matches`, farthest-point sampling: `C(k, 3)` triplets, 20 for
-   `k = 6`; no `C(n, 3)` areas built or sorted), or, with `spread_points=None` or a
+   the image (`spread_matches`, farthest-point sampling: `C(k, 3)` triplets, 4 for
+   `k = 4`; no `C(n, 3)` areas built or sorted), or, with `spread_points=None` or a
    `triplet_budget`, those of `select_triplets`;
 2. solve them by the three-point method (up to four roots each) and score every root by
    its Eq. 8 error over all matches (one projection of the matches per root);
@@ -75,6 +75,7 @@ __all__ = [
     "best_of_roots",
     "best_of_roots_batch",
     "distinct_best",
+    "settle_batch",
     "spread_matches",
 ]
 
@@ -210,6 +211,22 @@ def distinct_best(
     return jnp.stack(picks, axis=-1), jnp.stack(found, axis=-1)
 
 
+def _linear_starts(R: Mat3, t: Vec3, m: Matches, iterations: int):
+    """The linear method from `K` starts of each problem (`R`, `t` of `(B, K)`), run as
+    one flat batch of `B K` poses (each start beside a copy of its problem's matches: the
+    kernel's loops run over one long axis, faster than over `(B, K)` with `K` small).
+    Returns `(R, t, error, status)` of `(B, K)`."""
+    B, K = R.xx.shape
+    if K == 1:
+        R, t = Mat3(*(a[:, 0] for a in R)), Vec3(*(a[:, 0] for a in t))
+    else:
+        R, t = Mat3(*(a.reshape(B * K) for a in R)), Vec3(*(a.reshape(B * K) for a in t))
+        m = jax.tree.map(lambda a: jnp.repeat(a, K, axis=0), m)
+    R1, t1, error, _, status = linear_kernel(R, t, m, iterations)
+    R1, t1 = Mat3(*(a.reshape(B, K) for a in R1)), Vec3(*(a.reshape(B, K) for a in t1))
+    return R1, t1, error.reshape(B, K), status.reshape(B, K)
+
+
 def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Options) -> Best:
     """Steps 2-5 for a block of problems."""
     dtype = obs.camera.dtype
@@ -227,9 +244,7 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     pick, started = distinct_best(score, R, K)
     R0 = Mat3(*(jnp.take_along_axis(a, pick, axis=-1) for a in R))
     t0 = Vec3(*(jnp.take_along_axis(a, pick, axis=-1) for a in t))
-    R1, t1, lin_error, _, lin_status = linear_kernel(
-        R0, t0, lifted, iterations=options.linear_iterations
-    )
+    R1, t1, lin_error, lin_status = _linear_starts(R0, t0, m, options.linear_iterations)
     converged = started & (lin_status == Status.OK)
     error = jnp.where(converged, lin_error, big)
 
@@ -247,19 +262,28 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     error = jnp.take_along_axis(lin_error, k, axis=-1)[:, 0]
     pose = Pose(mat_to_array(R1), vec_to_array(t1))
 
-    # 5. the planar partner of the answer
+    # 5. the planar partner of the answer (its linear run only in a block that has one)
     if options.planar_partner:
         partner, flat = jax.vmap(planar_partner)(obs, pose)
-        Rp, tp, other, _, status_p = linear_kernel(
-            Mat3(*(partner.R[..., i, j] for i in range(3) for j in range(3))),
-            Vec3(*(partner.t[..., i] for i in range(3))),
-            m,
-            iterations=options.linear_iterations,
-        )
-        better = flat & accepted & (status_p == Status.OK) & (other < error)
+        flat = flat & accepted
+
+        def refine_partner(partner: Pose):
+            Rp, tp, other, _, status_p = linear_kernel(
+                Mat3(*(partner.R[..., i, j] for i in range(3) for j in range(3))),
+                Vec3(*(partner.t[..., i] for i in range(3))),
+                m,
+                iterations=options.linear_iterations,
+            )
+            return Pose(mat_to_array(Rp), vec_to_array(tp)), other, status_p == Status.OK
+
+        def no_partner(partner: Pose):
+            return partner, jnp.full_like(error, big), jnp.zeros_like(accepted)
+
+        refined, other, ok = jax.lax.cond(jnp.any(flat), refine_partner, no_partner, partner)
+        better = flat & ok & (other < error)
         pose = Pose(
-            jnp.where(better[:, None, None], mat_to_array(Rp), pose.R),
-            jnp.where(better[:, None], vec_to_array(tp), pose.t),
+            jnp.where(better[:, None, None], refined.R, pose.R),
+            jnp.where(better[:, None], refined.t, pose.t),
         )
         error = jnp.where(better, other, error)
 
@@ -319,6 +343,26 @@ class Answer(NamedTuple):
     pose: Pose
     error: Float[Array, "*B"]
     status: Int[Array, "*B"]
+
+
+def settle_batch(obs: Observations, found: Answer, steps: int = 2) -> Answer:
+    """The values-only finish of a batch of answers (`obs` and `found` with a leading `B`
+    axis): `steps` more Gauss-Newton steps of the linear kernel from each, kept where they
+    converge and do not raise the Eq. 8 error beyond rounding. At a converged answer they
+    move the pose by rounding; an answer left within a solver's tolerance (the linear
+    method's `1e-4`, Levenberg-Marquardt's) goes on to the stationary point of Eq. 8, the
+    optimum that `jaxpose.strategy._implicit.polish` reaches by Newton steps. For callers
+    that take no derivative (`Options.derivative=False`): batch-first, no Hessian."""
+    m = matches_from_observations(obs)
+    R = Mat3(*(found.pose.R[..., i, j] for i in range(3) for j in range(3)))
+    t = Vec3(*(found.pose.t[..., i] for i in range(3)))
+    R1, t1, error, _, status = linear_kernel(R, t, m, iterations=steps)
+    keep = (status == Status.OK) & (error <= found.error * (1 + 1e-9))
+    pose = Pose(
+        jnp.where(keep[:, None, None], mat_to_array(R1), found.pose.R),
+        jnp.where(keep[:, None], vec_to_array(t1), found.pose.t),
+    )
+    return Answer(found.triplet, pose, jnp.where(keep, error, found.error), found.status)
 
 
 def _exhaustive(obs: Observations, options: Options) -> Answer:

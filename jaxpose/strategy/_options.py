@@ -123,11 +123,11 @@ class Options:
     - `refine`: how the `solve*` entry points find the answer with the mixed method: the
       linear method from this many of the best-scored roots of all triplets, the whole
       mixed algorithm only for a problem where none of them is accepted
-      (`jaxpose.strategy.best_of_roots`; default `4`); `None`: the whole mixed algorithm
+      (`jaxpose.strategy.best_of_roots`; default `2`); `None`: the whole mixed algorithm
       over every triplet for every problem.
     - `spread_points`: the roots scored for `refine` are those of the `C(k, 3)` triplets
       of the `k` matches farthest apart in the image (`jaxpose.strategy.spread_matches`;
-      default `6`: 20 triplets); `None`: the triplets `max_triplets` and
+      default `4`: 4 triplets); `None`: the triplets `max_triplets` and
       `triplet_budget` select (a `triplet_budget` takes precedence too).
     - `fallback`: with `refine`, run the whole mixed algorithm for a problem none of
       whose refined roots is accepted (default `True`); `False`: report it not accepted
@@ -152,8 +152,8 @@ class Options:
     max_steps: int = 50
     max_triplets: int | None = 2000
     triplet_budget: int | None = None
-    refine: int | None = 4
-    spread_points: int | None = 6
+    refine: int | None = 2
+    spread_points: int | None = 4
     fallback: bool = True
     chunk: int | None = None
     derivative: bool = True

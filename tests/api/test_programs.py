@@ -129,6 +129,45 @@ def test_a_new_process_loads_instead_of_compiling(tmp_path):
     assert first[2] == second[2]
 
 
+def _wavy(x, y):
+    return jnp.sin(x) * y + jnp.cos(x * y)
+
+
+def test_a_program_stored_beside_jax_persistent_cache_loads_and_runs(tmp_path):
+    """JAX's persistent compilation cache on in every process: the first (program store
+    off) fills it, the second stores the program, the third loads and runs it. A program
+    stored from an executable that JAX's cache handed back lacked its machine code ("Function
+    ... not found" when run)."""
+    script = textwrap.dedent(
+        f"""
+        import jax, jax.numpy as jnp
+        jax.config.update("jax_compilation_cache_dir", {str(tmp_path / "xla")!r})
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+        from jaxpose.api._programs import Program
+        from tests.api.test_programs import _wavy
+        p = Program(_wavy, "tests.wavy-process")
+        y = p(jnp.arange(5.0), jnp.ones(5))
+        print(p.compiled, p.loaded, repr(float(y.sum())))
+        """
+    )
+    root = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))
+
+    def run(store: str):
+        env = dict(os.environ, **{CACHE_ENV: store})
+        out = subprocess.run(
+            [sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout.split()
+
+    warm = run("off")
+    stored = run(str(tmp_path / "programs"))
+    loaded = run(str(tmp_path / "programs"))
+    assert stored[:2] == ["1", "0"] and loaded[:2] == ["0", "1"]
+    assert warm[2] == stored[2] == loaded[2]
+
+
 @pytest.mark.parametrize("n", [4, 5, 11, 23])
 def test_padded_points_give_the_unpadded_answer(n):
     """`solve_pnp` pads `n` to its bucket (masked): the answer is `solve`'s on the

@@ -100,12 +100,14 @@ def test_answer_triplets_choices():
     `spread_points=None`: those of `select_triplets`."""
     C, M, I = _problems("ordinary", 9, 2, noise=1.0, seed=7)
     obs = jax.vmap(jp.observations)(C, M, I)
-    few = answer_triplets(jax.tree.map(lambda a: a[:, :5], obs), jp.Options())
+    few = answer_triplets(jax.tree.map(lambda a: a[:, :5], obs), jp.Options(spread_points=6))
     np.testing.assert_array_equal(few[0], jp.strategy.triplet_indices(5))
-    spread = np.asarray(answer_triplets(obs, jp.Options(spread_points=4)))
-    assert spread.shape == (2, 4, 3)
+    spread = np.asarray(answer_triplets(obs, jp.Options(spread_points=6)))
+    assert spread.shape == (2, 20, 3)
     for b in range(2):
-        assert len(np.unique(spread[b])) == 4
+        assert len(np.unique(spread[b])) == 6
+    default = np.asarray(answer_triplets(obs, jp.Options()))
+    assert default.shape == (2, 4, 3)
     every = answer_triplets(obs, jp.Options(spread_points=None))
     np.testing.assert_array_equal(every[1], jp.strategy.triplet_indices(9))
 
