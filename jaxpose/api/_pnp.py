@@ -156,12 +156,13 @@ def solve_pnp(
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     with jax.enable_x64(True):
         # (`device_put` of float64 numpy: no conversion program to compile on a first call)
-        args = tuple(jax.device_put(a) for a in (np.asarray(K, np.float64), obj, img, mask))
-        ok, rvec, tvec = program(_solve_opencv, first)(*args)
-        if then is not None and not bool(ok):
-            ok, rvec, tvec = program(_solve_opencv, then)(*args)
-        ok, rvec, tvec = bool(ok), np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
-    return ok, rvec.reshape(3, 1), tvec.reshape(3, 1)
+        # (one transfer each way for all the arrays)
+        args = jax.device_put((np.asarray(K, np.float64), obj, img, mask))
+        ok, rvec, tvec = jax.device_get(program(_solve_opencv, first)(*args))
+        if then is not None and not ok:
+            ok, rvec, tvec = jax.device_get(program(_solve_opencv, then)(*args))
+    rvec, tvec = np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
+    return bool(ok), rvec.reshape(3, 1), tvec.reshape(3, 1)
 
 
 #: Problems per compiled call of `solve_pnp_batch` (`chunk_size=None`). A batch runs
