@@ -39,11 +39,24 @@ from ._solve import solve, solve_many
 __all__ = ["solve_pnp", "solve_pnp_batch", "solve_pnp_ransac"]
 
 
-def _solve_opencv(K, obj, img, mask, options: Options):
-    """One problem in OpenCV's conventions (the program of `solve_pnp`)."""
-    C = camera_matrix(K)
-    sol = solve(C, obj, img, mask, options=options)
-    return sol.accepted, matrix_to_rotvec(sol.pose.R), sol.pose.t
+def _pack(K: np.ndarray, obj: np.ndarray, img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """One problem as one float64 vector `(9 + 6 n,)`: `K`, the points, the pixels and
+    the mask (one transfer to the device instead of four)."""
+    parts = (K, obj, img, mask.astype(np.float64))
+    return np.concatenate([np.asarray(a, np.float64).ravel() for a in parts])
+
+
+def _solve_opencv(packed, options: Options):
+    """One problem in OpenCV's conventions (the program of `solve_pnp`): `packed` from
+    `_pack`; returns `(ok, rvec, tvec)` as one vector of 7 (one transfer back)."""
+    n = (packed.shape[0] - 9) // 6
+    K = packed[:9].reshape(3, 3)
+    obj = packed[9 : 9 + 3 * n].reshape(n, 3)
+    img = packed[9 + 3 * n : 9 + 5 * n].reshape(n, 2)
+    mask = packed[9 + 5 * n :] > 0.5
+    sol = solve(camera_matrix(K), obj, img, mask, options=options)
+    ok = sol.accepted.astype(packed.dtype)[None]
+    return jnp.concatenate([ok, matrix_to_rotvec(sol.pose.R), sol.pose.t])
 
 
 def _batched_opencv(K, obj, img, mask, options: Options):
@@ -156,13 +169,12 @@ def solve_pnp(
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     with jax.enable_x64(True):
         # (`device_put` of float64 numpy: no conversion program to compile on a first call)
-        # (one transfer each way for all the arrays)
-        args = jax.device_put((np.asarray(K, np.float64), obj, img, mask))
-        ok, rvec, tvec = jax.device_get(program(_solve_opencv, first)(*args))
-        if then is not None and not ok:
-            ok, rvec, tvec = jax.device_get(program(_solve_opencv, then)(*args))
-    rvec, tvec = np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
-    return bool(ok), rvec.reshape(3, 1), tvec.reshape(3, 1)
+        # (one transfer each way: no conversion program to compile on a first call)
+        packed = jax.device_put(_pack(np.asarray(K, np.float64), obj, img, mask))
+        out = np.asarray(program(_solve_opencv, first)(packed))
+        if then is not None and not out[0]:
+            out = np.asarray(program(_solve_opencv, then)(packed))
+    return bool(out[0]), out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy()
 
 
 #: Problems per compiled call of `solve_pnp_batch` (`chunk_size=None`). A batch runs

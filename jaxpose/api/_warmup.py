@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..strategy._options import Options
-from ._pnp import CHUNK, _batched_opencv, _pad_points, _solve_opencv, _stages
+from ._pnp import CHUNK, _batched_opencv, _pack, _pad_points, _solve_opencv, _stages
 from ._programs import POINT_BUCKETS, Program, bucket_points, program
 
 __all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_plan"]
@@ -38,14 +38,15 @@ class Built(NamedTuple):
 def _problem(n: int, batch: int | None):
     """A problem of `n` points in the bucket's shapes (the values do not matter to the
     program, only the shapes)."""
-    K = jnp.asarray([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]], jnp.float64)
+    K = np.asarray([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]], np.float64)
     rng = np.random.default_rng(n)
     obj = rng.uniform(-1, 1, (n, 3))
     img = rng.uniform(0, 640, (n, 2))
-    if batch is not None:
-        obj, img = np.broadcast_to(obj, (batch, n, 3)), np.broadcast_to(img, (batch, n, 2))
+    if batch is None:  # `solve_pnp`'s program takes the problem packed in one vector
+        return (jnp.asarray(_pack(K, *_pad_points(obj, img))),)
+    obj, img = np.broadcast_to(obj, (batch, n, 3)), np.broadcast_to(img, (batch, n, 2))
     obj, img, mask = _pad_points(obj, img)
-    return K, jnp.asarray(obj), jnp.asarray(img), jnp.asarray(mask)
+    return jnp.asarray(K), jnp.asarray(obj), jnp.asarray(img), jnp.asarray(mask)
 
 
 def warm_up_plan(
