@@ -315,9 +315,8 @@ def chessboard(data: Path = CHESSBOARD, method: str = "mixed") -> dict:
     The reference pose of each image is the calibration's own extrinsics
     (`left_intrinsics.yml`, row `i` for the `i`-th image in name order; the file's own
     per-view errors confirm the order). Reprojection errors are RMS in image pixels
-    (distortion applied by `cv2.projectPoints`); jaxpose minimises Eq. 8 on undistorted
-    pixels (`undistorted_px`), OpenCV on distorted ones, hence differences of a few 1e-3
-    px."""
+    (distortion applied by `cv2.projectPoints`), and on undistorted pixels
+    (`undistorted_px`); both jaxpose and OpenCV minimise the error in the image."""
     fs = cv2.FileStorage(str(data / "left_intrinsics.yml"), cv2.FILE_STORAGE_READ)
     K = fs.getNode("camera_matrix").mat()
     dist = fs.getNode("distortion_coefficients").mat()

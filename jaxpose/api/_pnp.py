@@ -3,7 +3,9 @@
 
 The boundary between numpy and JAX: numpy in and out, OpenCV's conventions (the camera
 frame is the world frame, `C = K [I | 0]`; the pose is `rvec, tvec`, object to camera;
-`dist_coeffs` removed first with `cv2.undistortPoints`), float64 inside whatever the
+`dist_coeffs`: the answer is found on pixels undistorted with `cv2.undistortPoints`, then
+refined in the image, where OpenCV measures its error: `jaxpose.geometry.refine_in_image`,
+OpenCV's distortion model in JAX), float64 inside whatever the
 process's JAX configuration, inputs checked with `ValueError` naming the argument.
 """
 
@@ -20,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..geometry._camera import camera_matrix, undistort_pixels
+from ..geometry._distortion import COEFFICIENTS, refine_in_image
 from ..geometry._rotation import matrix_to_rotvec
 from ..geometry._validate import (
     as_dist_coeffs,
@@ -57,6 +60,41 @@ def _solve_opencv(packed, options: Options):
     sol = solve(camera_matrix(K), obj, img, mask, options=options)
     ok = sol.accepted.astype(packed.dtype)[None]
     return jnp.concatenate([ok, matrix_to_rotvec(sol.pose.R), sol.pose.t])
+
+
+#: Levenberg-Marquardt steps of the image-space refinement with `dist_coeffs`.
+REFINE_STEPS = 30
+
+
+def _pack_refine(K, dist, rvec, tvec, obj, raw, mask) -> np.ndarray:
+    """The image-space refinement's inputs as one float64 vector: `K` (9), the 14
+    coefficients (zero-padded), `rvec`, `tvec`, then as `_pack`."""
+    d = np.zeros(COEFFICIENTS)
+    d[: len(dist)] = dist
+    head = np.concatenate([np.asarray(K, np.float64).ravel(), d, rvec, tvec])
+    return np.concatenate([head, _pack(np.eye(3), obj, raw, mask)[9:]])
+
+
+def _refine_opencv(packed, steps: int):
+    """`refine_in_image` on `_pack_refine`'s vector (the distortion program of
+    `solve_pnp`): the refined `(rvec, tvec)` as one vector of 6."""
+    n = (packed.shape[0] - 29) // 6
+    K, dist = packed[:9].reshape(3, 3), packed[9:23]
+    rvec, tvec, rest = packed[23:26], packed[26:29], packed[29:]
+    obj = rest[: 3 * n].reshape(n, 3)
+    raw = rest[3 * n : 5 * n].reshape(n, 2)
+    mask = rest[5 * n :] > 0.5
+    rvec, tvec, _ = refine_in_image(K, dist, obj, raw, mask, rvec, tvec, steps)
+    return jnp.concatenate([rvec, tvec])
+
+
+def _refined_batch(K, dist, rvec, tvec, obj, raw, mask, steps: int):
+    """`refine_in_image` over a batch (the distortion program of `solve_pnp_batch`)."""
+    one = functools.partial(refine_in_image, iterations=steps)
+    rvec, tvec, _ = jax.vmap(one, in_axes=(None, None, 0, 0, 0, 0, 0))(
+        K, dist, obj, raw, mask, rvec, tvec
+    )
+    return rvec, tvec
 
 
 def _batched_opencv(K, obj, img, mask, options: Options):
@@ -109,13 +147,15 @@ def _read_array(x, name: str) -> np.ndarray:
 
 
 def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: bool):
+    """The checked arguments: `(K, dist, obj, raw, img)`, `raw` the pixels as given and
+    `img` the same undistorted (`raw` itself without distortion, `dist` then `None`)."""
     K = as_intrinsics(camera_matrix_, "camera_matrix")
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
     if not batched:
         obj = as_points(object_points, "object_points", 3, min_count=3)
         img = as_points(image_points, "image_points", 2, min_count=3)
         as_matching(obj, img)
-        return K, obj, undistort_pixels(img, K, dist)
+        return K, dist, obj, img, np.asarray(undistort_pixels(img, K, dist))
     img = as_point_batch(image_points, "image_points", 2, min_count=3)
     B, n = img.shape[:2]
     obj = _read_array(object_points, "object_points")
@@ -131,9 +171,10 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
         raise ValueError(
             f"object_points has {obj.shape[1]} points per problem but image_points has {n}"
         )
-    if dist is not None:
-        img = np.asarray(undistort_pixels(img.reshape(-1, 2), K, dist)).reshape(img.shape)
-    return K, obj, img
+    if dist is None:
+        return K, dist, obj, img, img
+    flat = np.asarray(undistort_pixels(img.reshape(-1, 2), K, dist))
+    return K, dist, obj, img, flat.reshape(img.shape)
 
 
 # The entry points check their arguments themselves (a `ValueError` naming the argument,
@@ -152,7 +193,10 @@ def solve_pnp(
 
     Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
     (or `(n, 1, 3)`), `image_points` `(n, 2)`, `camera_matrix` `K` `(3, 3)`, optional
-    `dist_coeffs` (removed first with `cv2.undistortPoints`). Computes in float64.
+    `dist_coeffs` (4, 5, 8, 12 or 14, OpenCV's order: the answer is found on the pixels
+    undistorted by `cv2.undistortPoints`, then refined to the pose of least pixel error
+    in the image, as `cv2.solvePnP` and `cv2.solvePnPRefineLM` minimise it;
+    `jaxpose.geometry.refine_in_image`). Computes in float64.
 
     `options`: a `jaxpose.Options` (default `Options()`: `method="mixed"`); `**changes`:
     keyword shorthands for its fields, e.g. `method="linear"` (one of `"mixed"`,
@@ -164,16 +208,23 @@ def solve_pnp(
     accepted.
     """
     options = resolve(options, changes)
-    K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, False)
+    K, dist, obj, raw, img = _prepare(
+        object_points, image_points, camera_matrix, dist_coeffs, False
+    )
     first, then = _stages(options)
+    _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
+    K = np.asarray(K, np.float64)
     with jax.enable_x64(True):
-        # (`device_put` of float64 numpy: no conversion program to compile on a first call)
         # (one transfer each way: no conversion program to compile on a first call)
-        packed = jax.device_put(_pack(np.asarray(K, np.float64), obj, img, mask))
-        out = np.asarray(program(_solve_opencv, first)(packed))
+        packed = jax.device_put(_pack(K, obj, img, mask))
+        out = np.array(program(_solve_opencv, first)(packed))
         if then is not None and not out[0]:
-            out = np.asarray(program(_solve_opencv, then)(packed))
+            out = np.array(program(_solve_opencv, then)(packed))
+        if dist is not None and out[0]:
+            # the pose that minimises the error in the image, as OpenCV's
+            packed = _pack_refine(K, dist, out[1:4], out[4:7], obj, raw, mask)
+            out[1:] = np.asarray(program(_refine_opencv, REFINE_STEPS)(jax.device_put(packed)))
     return bool(out[0]), out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy()
 
 
@@ -216,9 +267,10 @@ def solve_pnp_batch(
     **Returns:** `(ok (B,), rvecs (B, 3), tvecs (B, 3))`, OpenCV's conventions.
     """
     options = resolve(options, changes)
-    K, obj, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
+    K, dist, obj, raw, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
     first, then = _stages(options)
     K = np.asarray(K, np.float64)
+    _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     with jax.enable_x64(True):
 
@@ -240,6 +292,22 @@ def solve_pnp_batch(
             redo = run(obj[need], img[need], mask[need], then, FALLBACK_CHUNK)
             for out, part in zip((ok, rvecs, tvecs), redo, strict=True):
                 out[need] = part
+        if dist is not None:
+            # the poses that minimise the error in the image, as OpenCV's
+            d = np.zeros(COEFFICIENTS)
+            d[: len(dist)] = dist
+            rv, tv = run_batched(
+                _refined_batch,
+                (K, d),
+                (np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64), obj, raw, mask),
+                static=(REFINE_STEPS,),
+                chunk_size=CHUNK if chunk_size is None else chunk_size,
+                devices=devices,
+                min_tail=MIN_CHUNK if chunk_size is None else None,
+            )
+            ok = np.asarray(ok)
+            rvecs = np.where(ok[:, None], np.asarray(rv), rvecs)
+            tvecs = np.where(ok[:, None], np.asarray(tv), tvecs)
         return np.asarray(ok), np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64)
 
 

@@ -193,6 +193,7 @@ class Program:
         self._lock = threading.Lock()
         self.compiled = 0
         self.loaded = 0
+        self._unproven: set[tuple] = set()  # loaded from disk, not yet run
 
     @staticmethod
     def _path(key: bytes) -> Path | None:
@@ -248,21 +249,43 @@ class Program:
             exe = self._memo.get(signature)
             if exe is not None:
                 return exe
-            x64 = jax.dtypes.canonicalize_dtype(np.float64) == np.float64
-            key = repr((self.name, signature, bool(x64))).encode()
-            path = self._path(key)
+            path, key = self._where(signature)
             exe = self._load(path, key)
             if exe is not None:
                 self.loaded += 1
+                self._unproven.add(signature)
             else:
-                exe = _compile(self._jit.lower(*args), fresh=path is not None)
-                self.compiled += 1
-                self._store(path, key, exe)
+                exe = self._compile_and_store(args, path, key)
             self._memo[signature] = exe
             return exe
 
+    def _where(self, signature: tuple) -> tuple[Path | None, bytes]:
+        x64 = jax.dtypes.canonicalize_dtype(np.float64) == np.float64
+        key = repr((self.name, signature, bool(x64))).encode()
+        return self._path(key), key
+
+    def _compile_and_store(self, args, path: Path | None, key: bytes):
+        exe = _compile(self._jit.lower(*args), fresh=path is not None)
+        self.compiled += 1
+        self._store(path, key, exe)
+        return exe
+
     def __call__(self, *args):
-        return self.executable(*args)(*args)
+        exe = self.executable(*args)
+        signature = _signature(args)
+        if signature not in self._unproven:
+            return exe(*args)
+        # The first run of a program read from disk: one that cannot run in this process
+        # (its machine code incomplete) is compiled again and its file replaced.
+        try:
+            out = jax.block_until_ready(exe(*args))
+        except jax.errors.JaxRuntimeError:
+            with self._lock:
+                exe = self._compile_and_store(args, *self._where(signature))
+                self._memo[signature] = exe
+            out = exe(*args)
+        self._unproven.discard(signature)
+        return out
 
 
 def _compile(lowered, fresh: bool):

@@ -12,6 +12,9 @@ from ._camera import project as project
 from ._camera import project_with_depth as project_with_depth
 from ._camera import ray_planes as ray_planes
 from ._camera import undistort_pixels as undistort_pixels
+from ._distortion import distort as distort
+from ._distortion import project_points as project_points
+from ._distortion import refine_in_image as refine_in_image
 from ._errors import pose_error as pose_error
 from ._errors import pose_error_per_point as pose_error_per_point
 from ._errors import reprojection_residuals as reprojection_residuals
