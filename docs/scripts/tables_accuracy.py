@@ -279,3 +279,22 @@ def gradients(results: Path) -> str:
     out = table(header, rows)
     out += f"\n\n*{d.get('benchmark', '')}; loss {d.get('loss', '')}; {d.get('dtype', '')}.*"
     return out + "\n\n" + caption(d, name, command="python benchmarks/gradients.py")
+
+
+def distortion(results: Path) -> str:
+    """`benchmarks/distortion.py`: `solve_pnp` with `dist_coeffs` at OpenCV's image-space
+    optimum."""
+    d, name = load(results, "distortion.json", "distortion_quick.json")
+    rows = [
+        ("problems (k1 in [-0.4, 0.2], 12 matches, 1 px noise)", f"{d['problems']:,}"),
+        ("at `cv2.solvePnPRefineLM`'s image-space optimum", share(d["at_optimum"])),
+        ("target", f">= {share(d['target'])}: {d['verdict']}"),
+        ("largest excess over the optimum (px)", number(d["worst_excess_px"])),
+        (
+            "`project_points` against `cv2.projectPoints` (largest, px)",
+            number(d["projection_max_diff_px"]),
+        ),
+        ("`solve_pnp` with `dist_coeffs`, per problem", duration(d["solve_pnp_ms"] / 1e3)),
+    ]
+    command = "python -m benchmarks.distortion" + (" --quick" if "quick" in name else "")
+    return table(("", "jaxpose"), rows, left=2) + "\n\n" + caption(d, name, command=command)
