@@ -135,9 +135,11 @@ class Options:
     - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
       `None`: a size that grows with the batch, see `mixed_from_initial_batch`).
     - `derivative`: attach the implicit derivative to the answer (default `True`; see
-      `jaxpose.strategy._implicit.polish`); `False`: the same polish for the value only,
-      a smaller program without LAPACK calls (the OpenCV-convention entry points, whose
-      numpy outputs carry no derivative, use it).
+      `jaxpose.strategy._implicit.polish`); `False`: values only, a smaller program
+      without LAPACK calls (the OpenCV-convention entry points, whose numpy outputs carry
+      no derivative, use it): an answer from the best roots is finished by two more
+      steps of the linear method (`jaxpose.strategy._best.settle_batch`), any other by
+      the same Newton polish solved by Cholesky.
     """
 
     method: str = "mixed"
