@@ -194,8 +194,9 @@ def solve_pnp(
     Same conventions and shapes as OpenCV (numpy in and out): `object_points` `(n, 3)`
     (or `(n, 1, 3)`), `image_points` `(n, 2)`, `camera_matrix` `K` `(3, 3)`, optional
     `dist_coeffs` (4, 5, 8, 12 or 14, OpenCV's order: the answer is found on the pixels
-    undistorted by `cv2.undistortPoints`, then refined to the pose of least pixel error
-    in the image, as `cv2.solvePnP` and `cv2.solvePnPRefineLM` minimise it;
+    undistorted by `cv2.undistortPoints`, then, for the optimising methods (not
+    `"three_point"`), refined to the pose of least pixel error in the image, as
+    `cv2.solvePnP` and `cv2.solvePnPRefineLM` minimise it;
     `jaxpose.geometry.refine_in_image`). Computes in float64.
 
     `options`: a `jaxpose.Options` (default `Options()`: `method="mixed"`); `**changes`:
@@ -221,7 +222,7 @@ def solve_pnp(
         out = np.array(program(_solve_opencv, first)(packed))
         if then is not None and not out[0]:
             out = np.array(program(_solve_opencv, then)(packed))
-        if dist is not None and out[0]:
+        if dist is not None and out[0] and options.method != "three_point":
             # the pose that minimises the error in the image, as OpenCV's
             packed = _pack_refine(K, dist, out[1:4], out[4:7], obj, raw, mask)
             out[1:] = np.asarray(program(_refine_opencv, REFINE_STEPS)(jax.device_put(packed)))
@@ -292,7 +293,7 @@ def solve_pnp_batch(
             redo = run(obj[need], img[need], mask[need], then, FALLBACK_CHUNK)
             for out, part in zip((ok, rvecs, tvecs), redo, strict=True):
                 out[need] = part
-        if dist is not None:
+        if dist is not None and options.method != "three_point":
             # the poses that minimise the error in the image, as OpenCV's
             d = np.zeros(COEFFICIENTS)
             d[: len(dist)] = dist
