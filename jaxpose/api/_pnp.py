@@ -66,11 +66,18 @@ def _solve_opencv(packed, options: Options):
 REFINE_STEPS = 30
 
 
+def _all_coefficients(dist: np.ndarray) -> np.ndarray:
+    """OpenCV's coefficients zero-padded to the full model's `COEFFICIENTS` (one program
+    for every form)."""
+    d = np.zeros(COEFFICIENTS)
+    d[: len(dist)] = dist
+    return d
+
+
 def _pack_refine(K, dist, rvec, tvec, obj, raw, mask) -> np.ndarray:
     """The image-space refinement's inputs as one float64 vector: `K` (9), the 14
     coefficients (zero-padded), `rvec`, `tvec`, then as `_pack`."""
-    d = np.zeros(COEFFICIENTS)
-    d[: len(dist)] = dist
+    d = _all_coefficients(dist)
     head = np.concatenate([np.asarray(K, np.float64).ravel(), d, rvec, tvec])
     return np.concatenate([head, _pack(np.eye(3), obj, raw, mask)[9:]])
 
@@ -295,11 +302,9 @@ def solve_pnp_batch(
                 out[need] = part
         if dist is not None and options.method != "three_point":
             # the poses that minimise the error in the image, as OpenCV's
-            d = np.zeros(COEFFICIENTS)
-            d[: len(dist)] = dist
             rv, tv = run_batched(
                 _refined_batch,
-                (K, d),
+                (K, _all_coefficients(dist)),
                 (np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64), obj, raw, mask),
                 static=(REFINE_STEPS,),
                 chunk_size=CHUNK if chunk_size is None else chunk_size,

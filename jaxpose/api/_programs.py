@@ -241,7 +241,9 @@ class Program:
 
     def executable(self, *args):
         """The compiled program for `args` (loaded from disk, or compiled and stored)."""
-        signature = _signature(args)
+        return self._executable(args, _signature(args))
+
+    def _executable(self, args: tuple, signature: tuple):
         exe = self._memo.get(signature)
         if exe is not None:
             return exe
@@ -271,8 +273,8 @@ class Program:
         return exe
 
     def __call__(self, *args):
-        exe = self.executable(*args)
         signature = _signature(args)
+        exe = self._executable(args, signature)
         if signature not in self._unproven:
             return exe(*args)
         # The first run of a program read from disk: one that cannot run in this process
