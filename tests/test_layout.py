@@ -12,7 +12,7 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxpose"
 
 # Low to high: a module may import from its own layer or a lower one.
-LAYERS = ("geometry", "solvers", "strategy", "api", "apps", "viz", "cli")
+LAYERS = ("geometry", "solvers", "strategy", "api", "features", "apps", "viz", "cli")
 MAX_LINES = 600
 
 

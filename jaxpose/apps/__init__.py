@@ -1,4 +1,4 @@
-"""Layer 5, applications: the paper's bench and experiment, model database, recognition
+"""Layer 6, applications: the paper's bench and experiment, model database, recognition
 hypothesis verification, click-to-3D pointing, the robot, camera calibration.
 """
 
@@ -15,6 +15,8 @@ from ._calibration import calibrate_with_robot as calibrate_with_robot
 from ._calibration import dlt as dlt
 from ._calibration import led_joint_grid as led_joint_grid
 from ._calibration import simulate_led_pairs as simulate_led_pairs
+from ._mesh import read_ply as read_ply
+from ._mesh import write_ply as write_ply
 from ._models import chessboard as chessboard
 from ._models import model_bench as model_bench
 from ._models import model_database as model_database
@@ -41,3 +43,6 @@ from ._robot import default_robot as default_robot
 from ._robot import forward_kinematics as forward_kinematics
 from ._robot import inverse_kinematics as inverse_kinematics
 from ._robot import joint_command as joint_command
+from ._textured import TexturedPose as TexturedPose
+from ._textured import locate_matches as locate_matches
+from ._textured import locate_textured as locate_textured

@@ -66,17 +66,17 @@ def polygon_normals(vertices: np.ndarray, faces) -> np.ndarray:
     return np.array(normals).reshape(-1, 3)
 
 
-def _inside(point: np.ndarray, polygon: np.ndarray, normal: np.ndarray) -> bool:
-    """Even-odd test of a point in the plane of a 3D polygon (projected along its normal's
-    largest axis)."""
+def _inside_many(points: np.ndarray, polygon: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Even-odd test of points `(P, 3)` in the plane of a 3D polygon (projected along its
+    normal's largest axis): `(P,)` bool."""
     keep = [i for i in range(3) if i != int(np.argmax(np.abs(normal)))]
-    x, y = point[keep]
-    px, py = polygon[:, keep[0]], polygon[:, keep[1]]
-    qx, qy = np.roll(px, -1), np.roll(py, -1)
+    x, y = points[:, keep[0], None], points[:, keep[1], None]
+    px, py = polygon[None, :, keep[0]], polygon[None, :, keep[1]]
+    qx, qy = np.roll(px, -1, axis=1), np.roll(py, -1, axis=1)
     crosses = (py > y) != (qy > y)
     with np.errstate(divide="ignore", invalid="ignore"):
         at = px + (y - py) * (qx - px) / (qy - py)
-    return bool(np.sum(crosses & (x < at)) % 2)
+    return np.sum(crosses & (x < at), axis=1) % 2 == 1
 
 
 def seen_vertices(
@@ -91,23 +91,19 @@ def seen_vertices(
     world = model.vertices @ np.asarray(R).T + np.asarray(t)
     normals = polygon_normals(world, model.faces)
     front = [i for i, f in enumerate(model.faces) if normals[i] @ (centre - world[f[0]]) > 0]
-    candidates = sorted({v for i in front for v in model.faces[i]})
-    seen = []
-    for v in candidates:
-        ray = world[v] - centre
-        hidden = False
-        for i in front:
-            face = model.faces[i]
-            if v in face:
-                continue
-            n = normals[i]
-            den = n @ ray
-            if abs(den) < 1e-12:
-                continue
-            s = n @ (world[face[0]] - centre) / den
-            if 1e-9 < s < 1 - 1e-9 and _inside(centre + s * ray, world[list(face)], n):
-                hidden = True
-                break
-        if not hidden:
-            seen.append(v)
-    return np.array(seen, dtype=np.int64)
+    candidates = np.array(sorted({v for i in front for v in model.faces[i]}), dtype=np.int64)
+    hidden = np.zeros(len(candidates), dtype=bool)
+    rays = world[candidates] - centre
+    for i in front:
+        face = list(model.faces[i])
+        n = normals[i]
+        den = rays @ n
+        ok = (np.abs(den) >= 1e-12) & ~np.isin(candidates, face)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(ok, n @ (world[face[0]] - centre) / np.where(ok, den, 1), 0)
+        ok &= (s > 1e-9) & (s < 1 - 1e-9)
+        if not ok.any():
+            continue
+        hits = centre + s[ok, None] * rays[ok]
+        hidden[np.flatnonzero(ok)[_inside_many(hits, world[face], n)]] = True
+    return candidates[~hidden]

@@ -1,4 +1,4 @@
-"""Layer 7, the command line `jaxpose` (`reproduce`, `bench`, `solve`, `point`) and its problem
+"""Layer 8, the command line `jaxpose` (`reproduce`, `bench`, `solve`, `point`) and its problem
 files.
 """
 

@@ -1,4 +1,4 @@
-"""Layer 6, pictures: rerun logging and blueprints, OpenCV overlays and renderings,
+"""Layer 7, pictures: rerun logging and blueprints, OpenCV overlays and renderings,
 matplotlib figures."""
 
 from ._figures import write_figures as write_figures
@@ -14,3 +14,5 @@ from ._rerun_recording import close_recording as close_recording
 from ._rerun_recording import rerun_recording as rerun_recording
 from ._rerun_solution import log_solution as log_solution
 from ._rerun_solution import log_triplets as log_triplets
+from ._scenes import RenderedScene as RenderedScene
+from ._scenes import rendered_scene as rendered_scene

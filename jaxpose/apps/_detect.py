@@ -1,0 +1,586 @@
+r"""Recognition without correspondences (the paper's Sections 5-6, with the matcher
+built in): which models of a database an image shows, and where.
+
+Input: the image's primitives (`jaxpose.features.image_primitives`: vertices, the
+links between them, the distance map of the detected segments) and a database of
+polyhedral models. No match is given.
+
+1. **Hypotheses.** Every image path (three vertices joined by two detected edges,
+   `i - j - k`) is paired with every model path (`a - b - c`, two model edges), after a
+   geometric filter: the ratio of the two edge lengths may change by at most
+   `max_ratio` between the model and the image (perspective foreshortens, it does not
+   swap a short edge for one four times longer). Each pairing is three matches.
+2. **Solve and score, compiled** (`jaxpose.apps._hypotheses.score_paths`): the
+   three-point solver's roots of every pairing, each scored by the model's vertices
+   and edges that it predicts and the image holds, in fixed-shape chunks; each chunk
+   keeps its best poses.
+3. **Refine and verify.** The best distinct poses of each model (`candidates`): their
+   seen vertices matched to the nearest image vertices, then the existing verification
+   (`verify`: the mixed algorithm over the matches and the chi-square acceptance rule),
+   twice (matches again from the verified pose, outliers dropped).
+4. **Decide.** A detection's `support` is the fraction of what its pose predicts (seen
+   vertices, and seen edges sampled every 2 px) that the image holds. It is reported
+   when the verification accepted it, at least `min_vertices` vertices are matched
+   and `support >= min_support`; detections are ranked by `score`, the evidence
+   explained (so that a model that fits only part of a larger one's image loses to
+   it), and one that reuses most image vertices of a better one is dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry._pose import observations
+from ..geometry._validate import as_camera
+from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
+from ..solvers._kernel_linear import linear_kernel, matches_from_observations
+from ..solvers._status import Status
+from ._hypotheses import ModelTables, score_paths
+from ._polyhedron import Polyhedron, polygon_normals, seen_vertices
+from ._recognition import _verify_batch
+
+__all__ = ["Detection", "detect"]
+
+SAMPLES = 4  # points per edge in the compiled score
+TOP = 16  # poses kept per chunk
+VERIFIED = 8  # best refined candidates verified (one compiled call)
+
+
+@dataclasses.dataclass(frozen=True)
+class Detection:
+    """One recognised object.
+
+    **Fields:** `model` (name); `R`, `t` (model to world, the camera's world frame);
+    `score` (what the image holds of the pose's prediction: each seen vertex near an
+    image vertex counts 1, each seen edge the fraction of its length near a detected
+    segment; the ranking score); `support` (`score` over what the pose predicts, in
+    `[0, 1]`); `vertices` `(k,)` model vertex indices matched to `image_vertices`
+    `(k,)` indices into the primitives' vertices, at `pixels` `(k, 2)`; `error` (Eq. 8
+    over the matches, px); `status` (the verification's).
+    """
+
+    model: str
+    R: np.ndarray
+    t: np.ndarray
+    score: float
+    support: float
+    vertices: np.ndarray
+    image_vertices: np.ndarray
+    pixels: np.ndarray
+    error: float
+    status: Status
+
+
+# --------------------------------------------------------------------------- the models
+
+
+def _edge_faces(model: Polyhedron) -> np.ndarray:
+    table = np.zeros((len(model.edges), len(model.faces)))
+    for f, face in enumerate(model.faces):
+        ring = {frozenset((face[i], face[(i + 1) % len(face)])) for i in range(len(face))}
+        for e, (a, b) in enumerate(model.edges):
+            table[e, f] = frozenset((int(a), int(b))) in ring
+    return table
+
+
+def _paths(model: Polyhedron) -> np.ndarray:
+    """`(Q, 3)` every ordered path `a - b - c` along two model edges."""
+    neighbours: dict[int, set[int]] = {}
+    for a, b in np.asarray(model.edges):
+        neighbours.setdefault(int(a), set()).add(int(b))
+        neighbours.setdefault(int(b), set()).add(int(a))
+    rows = [
+        (a, b, c)
+        for b, near in sorted(neighbours.items())
+        for a, c in itertools.permutations(sorted(near), 2)
+    ]
+    return np.array(rows, dtype=np.int64).reshape(-1, 3)
+
+
+def _round_up(x: int, step: int = 8) -> int:
+    return max(step, -(-x // step) * step)
+
+
+def _tables(model: Polyhedron, V: int, F: int, E: int) -> ModelTables:
+    verts = np.asarray(model.vertices, np.float64)
+    normals = polygon_normals(verts, model.faces)
+    offsets = np.array([n @ verts[f[0]] for n, f in zip(normals, model.faces, strict=True)])
+    vf = np.zeros((V, F))
+    for f, face in enumerate(model.faces):
+        vf[list(face), f] = 1
+    ef = np.zeros((E, F))
+    ef[: len(model.edges), : len(model.faces)] = _edge_faces(model)
+    ends = verts[np.asarray(model.edges)]  # (e, 2, 3)
+    w = (np.arange(1, SAMPLES + 1) / (SAMPLES + 1))[None, :, None]
+    samples = np.zeros((E, SAMPLES, 3))
+    samples[: len(ends)] = ends[:, :1] * (1 - w) + ends[:, 1:] * w
+    pad = (
+        lambda a, n, fill=0.0: np.concatenate(  # noqa: E731
+            [a, np.full((n - len(a), *a.shape[1:]), fill)]
+        )
+    )
+    arrays = (
+        pad(verts, V),
+        pad(np.ones(len(verts)), V),
+        pad(normals, F),
+        pad(offsets, F, 1.0),
+        vf,
+        ef,
+        samples,
+        pad(np.ones(len(ends)), E),
+    )
+    return ModelTables(*(jnp.asarray(a, jnp.float32) for a in arrays))
+
+
+# --------------------------------------------------------------------------- the image
+
+
+def _image_paths(links: np.ndarray) -> np.ndarray:
+    """`(P, 3)` paths `i - j - k` with `i < k` (the reversed path is the same pairing
+    against the reversed model path)."""
+    rows = []
+    for j in range(len(links)):
+        near = np.flatnonzero(links[j])
+        rows.extend((i, j, k) for i, k in itertools.combinations(near, 2))
+    return np.array(rows, dtype=np.int64).reshape(-1, 3)
+
+
+def _vertex_distance(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    import cv2
+
+    H, W = shape
+    mask = np.full((H, W), 255, np.uint8)
+    ij = np.round(points).astype(np.int64)
+    keep = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < W) & (ij[:, 1] < H)
+    mask[ij[keep, 1], ij[keep, 0]] = 0
+    if not keep.any():
+        return np.full((H, W), np.float32(1e6))
+    return cv2.distanceTransform(mask, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def _length_ratio(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    return np.log(np.linalg.norm(a - b, axis=-1) + 1e-12) - np.log(
+        np.linalg.norm(c - b, axis=-1) + 1e-12
+    )
+
+
+# --------------------------------------------------------------------------- refinement
+
+
+def _match(K, R, t, model: Polyhedron, points: np.ndarray, radius: float):
+    """Model vertices seen at camera-frame pose `(R, t)` matched one to one to the
+    nearest image vertices within `radius` px (closest pairs first)."""
+    seen = seen_vertices(model, R, t, np.zeros(3))
+    if len(seen) == 0 or len(points) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    cam = np.asarray(model.vertices)[seen] @ R.T + t
+    uv = cam @ K.T
+    uv = uv[:, :2] / np.where(uv[:, 2:] > 0, uv[:, 2:], 1)
+    d = np.linalg.norm(uv[:, None] - points[None], axis=-1)
+    order = np.argsort(d, axis=None)
+    used_m, used_i, pairs = set(), set(), []
+    for flat in order:
+        m, i = divmod(int(flat), len(points))
+        if d[m, i] > radius:
+            break
+        if m in used_m or i in used_i:
+            continue
+        used_m.add(m)
+        used_i.add(i)
+        pairs.append((seen[m], i))
+    pairs.sort()
+    rows = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    return rows[:, 0], rows[:, 1]
+
+
+def _support(K, R, t, model: Polyhedron, vdist, edist, vertex_radius, edge_radius):
+    """How much of what the pose predicts the image holds: `(held, total)`, counting
+    each seen vertex as 1 and each seen edge as the fraction of its length (sampled
+    every 2 px) near a detected segment."""
+    H, W = edist.shape
+    seen = set(seen_vertices(model, R, t, np.zeros(3)).tolist())
+    cam = np.asarray(model.vertices) @ R.T + t
+    uv = cam @ K.T
+    uv = uv[:, :2] / np.where(uv[:, 2:] > 0, uv[:, 2:], 1)
+
+    def lookup(p):
+        inside = (p[:, 0] >= 0) & (p[:, 1] >= 0) & (p[:, 0] < W) & (p[:, 1] < H)
+        ij = np.clip(np.floor(p).astype(np.int64), 0, [W - 1, H - 1])
+        return np.where(inside, edist[ij[:, 1], ij[:, 0]], np.inf)
+
+    total, held = 0.0, 0.0
+    for v in seen:
+        p = uv[v]
+        if 0 <= p[0] < W and 0 <= p[1] < H:
+            total += 1
+            held += vdist[int(p[1]), int(p[0])] <= vertex_radius
+    for a, b in np.asarray(model.edges):
+        if int(a) not in seen or int(b) not in seen:
+            continue
+        n = max(2, int(np.linalg.norm(uv[b] - uv[a]) / 2))
+        w = (np.arange(n) + 0.5)[:, None] / n
+        d = lookup(uv[a] * (1 - w) + uv[b] * w)
+        total += 1
+        held += float(np.mean(d <= edge_radius))
+    return held, total
+
+
+# --------------------------------------------------------------------------- the entry point
+
+
+def _check_database(database) -> dict[str, Polyhedron]:
+    if isinstance(database, Polyhedron):
+        database = {database.name: database}
+    if not isinstance(database, dict) or not database:
+        raise ValueError("database must be a Polyhedron or a non-empty dict name -> Polyhedron")
+    for name, model in database.items():
+        if not isinstance(model, Polyhedron):
+            raise ValueError(f"database[{name!r}] must be a Polyhedron")
+        if len(model.faces) == 0 or len(model.edges) < 2:
+            raise ValueError(f"database[{name!r}] needs faces and edges")
+    return dict(database)
+
+
+def _check_primitives(primitives) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    try:
+        points = np.asarray(primitives.vertices.points, np.float64).reshape(-1, 2)
+        links = np.asarray(primitives.links, bool)
+        edist = np.asarray(primitives.distance, np.float32)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise ValueError(
+            "primitives must have vertices.points (V, 2), links (V, V) and distance (H, W)"
+        ) from exc
+    if links.shape != (len(points), len(points)):
+        raise ValueError(f"primitives.links must be ({len(points)}, {len(points)})")
+    if edist.ndim != 2 or min(edist.shape) < 1:
+        raise ValueError("primitives.distance must be a (H, W) map")
+    if not np.all(np.isfinite(points)):
+        raise ValueError("primitives.vertices.points must be finite")
+    return points, links | links.T, edist
+
+
+def _positive(name: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        x = math.nan
+    if not (math.isfinite(x) and x > 0) or isinstance(value, bool):
+        raise ValueError(f"{name} must be a positive number, got {value!r}")
+    return x
+
+
+def detect(
+    camera,
+    primitives,
+    database,
+    *,
+    noise: float = 1.0,
+    vertex_radius: float = 4.0,
+    edge_radius: float = 2.0,
+    max_ratio: float = 4.0,
+    candidates: int = 6,
+    min_vertices: int = 5,
+    min_support: float = 0.6,
+    max_detections: int = 5,
+    chunk: int = 1024,
+) -> list[Detection]:
+    """Recognise the database's models in an image from its primitives alone.
+
+    **Arguments:**
+    - `camera`: the 3x4 projection matrix `C` (world frame), as in `verify`.
+    - `primitives`: the image's `jaxpose.features.Primitives` (any object with
+      `vertices.points` `(V, 2)`, `links` `(V, V)` bool and `distance` `(H, W)`).
+    - `database`: a `Polyhedron` or a dict name -> `Polyhedron`.
+    - `noise`: the image vertices' noise (px, per coordinate) for the verification.
+    - `vertex_radius`, `edge_radius`: px within which a predicted vertex / edge point
+      counts as held by the image.
+    - `max_ratio`: the pairing filter on edge-length ratios (see the module docstring).
+    - `candidates`: distinct poses of each model refined and verified.
+    - `min_vertices`, `min_support`: the acceptance of a detection.
+    - `max_detections`: at most this many detections.
+    - `chunk`: pairings per compiled pass.
+
+    **Returns:** the detections, best first (empty when nothing is recognised).
+    """
+    C = np.asarray(as_camera(camera, "camera"), np.float64)
+    models = _check_database(database)
+    points, links, edist = _check_primitives(primitives)
+    noise = _positive("noise", noise)
+    vertex_radius = _positive("vertex_radius", vertex_radius)
+    edge_radius = _positive("edge_radius", edge_radius)
+    max_ratio = _positive("max_ratio", max_ratio)
+    for name, value in (
+        ("candidates", candidates),
+        ("min_vertices", min_vertices),
+        ("max_detections", max_detections),
+        ("chunk", chunk),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if not 0 <= float(min_support) <= 1:
+        raise ValueError(f"min_support must lie in [0, 1], got {min_support!r}")
+    min_vertices = max(int(min_vertices), 4)
+
+    from ..geometry._camera import decompose_camera
+
+    K, Rc, tc, _ = (np.asarray(a, np.float64) for a in decompose_camera(jnp.asarray(C)))
+    H, W = edist.shape
+    vdist = _vertex_distance(points, (H, W))
+    paths = _image_paths(links)
+    if len(paths) == 0:
+        return []
+    rays = np.column_stack([points, np.ones(len(points))]) @ np.linalg.inv(K).T
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    image_ratio = _length_ratio(*(points[paths[:, i]] for i in range(3)))
+
+    V = _round_up(max(len(m.vertices) for m in models.values()))
+    F = _round_up(max(len(m.faces) for m in models.values()))
+    E = _round_up(max(len(m.edges) for m in models.values()))
+    maps = (jnp.asarray(vdist.reshape(-1)), jnp.asarray(edist.reshape(-1)))
+    radii = (jnp.float32(vertex_radius), jnp.float32(edge_radius))
+    found: list[tuple[float, str, np.ndarray, np.ndarray]] = []
+    for name, model in models.items():
+        mpaths = _paths(model)
+        verts = np.asarray(model.vertices, np.float64)
+        model_ratio = _length_ratio(*(verts[mpaths[:, i]] for i in range(3)))
+        close = np.abs(image_ratio[:, None] - model_ratio[None, :]) <= math.log(max_ratio)
+        p, q = np.nonzero(close)
+        if len(p) == 0:
+            continue
+        tables = _tables(model, V, F, E)
+        size = chunk
+        kept = []
+        for start in range(0, len(p), size):
+            rows = slice(start, start + size)
+            n = len(p[rows])
+            bearings = np.zeros((size, 3, 3), np.float32)
+            model_pts = np.zeros((size, 3, 3), np.float32)
+            bearings[:n] = rays[paths[p[rows]]]
+            model_pts[:n] = verts[mpaths[q[rows]]]
+            bearings[n:], model_pts[n:] = bearings[0], model_pts[0]
+            mask = (np.arange(size) < n).astype(np.float32)
+            out = score_paths(
+                jnp.asarray(K, jnp.float32),
+                jnp.asarray(bearings),
+                jnp.asarray(model_pts),
+                jnp.asarray(mask),
+                tables,
+                *maps,
+                *radii,
+                width=W,
+                height=H,
+                top=TOP,
+            )
+            out = jax.tree.map(np.asarray, out)
+            for s, R, t in zip(out.score, out.R, out.t, strict=True):
+                if s > 3:  # more than the three matched vertices
+                    kept.append((float(s), R.astype(np.float64), t.astype(np.float64)))
+        kept.sort(key=lambda x: -x[0])
+        for s, R, t in _distinct(kept, model, K, candidates):
+            found.append((s, name, R, t))
+    if not found:
+        return []
+    rows = _round_up(candidates * len(models))
+    return _refine(
+        C,
+        K,
+        Rc,
+        tc,
+        found,
+        models,
+        points,
+        vdist,
+        edist,
+        noise,
+        vertex_radius,
+        edge_radius,
+        min_vertices,
+        float(min_support),
+        max_detections,
+        V,
+        rows,
+        VERIFIED,
+    )
+
+
+def _pixels(K, R, t, vertices) -> np.ndarray:
+    cam = np.asarray(vertices) @ R.T + t
+    uv = cam @ K.T
+    return uv[:, :2] / np.where(np.abs(uv[:, 2:]) > 1e-12, uv[:, 2:], 1e-12)
+
+
+def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 3.0):
+    """The best `count` poses, skipping any whose vertices project within `tolerance`
+    px (RMS) of a better one's."""
+    out: list[tuple[float, np.ndarray, np.ndarray]] = []
+    shown: list[np.ndarray] = []
+    for s, R, t in kept:
+        uv = _pixels(K, R, t, model.vertices)
+        if any(np.sqrt(np.mean(np.sum((uv - o) ** 2, axis=1))) < tolerance for o in shown):
+            continue
+        out.append((s, R, t))
+        shown.append(uv)
+        if len(out) == count:
+            break
+    return out
+
+
+@jax.jit
+def _settle(C, model, image, mask, R, t):
+    """Five steps of the linear method (Gauss-Newton on Eq. 8) from every pose `(H, 3, 3)`,
+    `(H, 3)` over its matches `(H, V, ...)` (model to world; `C` the world camera)."""
+    obs = jax.vmap(observations, in_axes=(None, 0, 0, 0))(C, model, image, mask)
+    m = matches_from_observations(obs)
+    R0 = Mat3(*(R[:, i, j] for i in range(3) for j in range(3)))
+    t0 = Vec3(*(t[:, i] for i in range(3)))
+    R1, t1, error, _, status = linear_kernel(R0, t0, m, iterations=5)
+    good = status == Status.OK
+    R1, t1 = mat_to_array(R1), vec_to_array(t1)
+    return jnp.where(good[:, None, None], R1, R), jnp.where(good[:, None], t1, t)
+
+
+def _padded(rows, models, points, V: int, Hn: int):
+    model = np.zeros((Hn, V, 3))
+    image = np.zeros((Hn, V, 2))
+    mask = np.zeros((Hn, V), bool)
+    for r, (name, mv, iv) in enumerate(rows):
+        k = len(mv)
+        model[r, :k] = np.asarray(models[name].vertices)[mv]
+        image[r, :k] = points[iv]
+        mask[r, :k] = k >= 4
+    return model, image, mask
+
+
+def _refine(
+    C,
+    K,
+    Rc,
+    tc,
+    found,
+    models,
+    points,
+    vdist,
+    edist,
+    noise,
+    vertex_radius,
+    edge_radius,
+    min_vertices,
+    min_support,
+    max_detections,
+    V,
+    Hn,
+    verified,
+):
+    # Camera-frame poses to world (x_cam = Rc x_world + tc) and back.
+    to_cam = lambda R, t: (Rc @ R, Rc @ t + tc)  # noqa: E731
+    Rw = np.stack([Rc.T @ R for _, _, R, _ in found])
+    tw = np.stack([Rc.T @ (t - tc) for _, _, _, t in found])
+    names = [name for _, name, _, _ in found]
+    for radius in (2 * vertex_radius, vertex_radius):
+        rows = [
+            (n, *_match(K, *to_cam(R, t), models[n], points, radius))
+            for n, R, t in zip(names, Rw, tw, strict=True)
+        ]
+        model, image, mask = _padded(rows, models, points, V, Hn)
+        pad = Hn - len(rows)
+        with jax.enable_x64(True):
+            R1, t1 = _settle(
+                jnp.asarray(C),
+                jnp.asarray(model),
+                jnp.asarray(image),
+                jnp.asarray(mask),
+                jnp.asarray(np.concatenate([Rw, np.repeat(Rw[:1], pad, 0)])),
+                jnp.asarray(np.concatenate([tw, np.repeat(tw[:1], pad, 0)])),
+            )
+        Rw, tw = np.asarray(R1)[: len(rows)], np.asarray(t1)[: len(rows)]
+    ranked = []
+    for n, R, t in zip(names, Rw, tw, strict=True):
+        mv, iv = _match(K, *to_cam(R, t), models[n], points, vertex_radius)
+        if len(mv) < min_vertices:
+            continue
+        held, total = _support(
+            K, *to_cam(R, t), models[n], vdist, edist, vertex_radius, edge_radius
+        )
+        if total and held >= min_support * total:
+            ranked.append((held, total, n, mv, iv))
+    ranked.sort(key=lambda r: -r[0])
+    ranked = ranked[:verified]
+    if not ranked:
+        return []
+    out = _verify_rows(
+        C, [(n, mv, iv) for _, _, n, mv, iv in ranked], models, points, noise, V, verified
+    )
+    detections = []
+    for (_, _, name, mv, iv), (Rv, tv, error, inliers, accepted, status) in zip(
+        ranked, out, strict=True
+    ):
+        if not accepted or np.sum(inliers) < min_vertices:
+            continue
+        held, total = _support(
+            K, *to_cam(Rv, tv), models[name], vdist, edist, vertex_radius, edge_radius
+        )
+        if held < min_support * total:
+            continue
+        detections.append(
+            Detection(
+                name,
+                Rv,
+                tv,
+                held,
+                held / total,
+                mv[inliers],
+                iv[inliers],
+                points[iv[inliers]],
+                error,
+                status,
+            )
+        )
+    detections.sort(key=lambda d: (-d.score, d.error))
+    chosen: list[Detection] = []
+    for d in detections:
+        used = set(d.image_vertices.tolist())
+        if any(len(used & set(c.image_vertices.tolist())) > 0.5 * len(used) for c in chosen):
+            continue
+        chosen.append(d)
+        if len(chosen) == max_detections:
+            break
+    return chosen
+
+
+def _verify_rows(C, rows, models, points, noise, V, Hn):
+    """`verify` on every row `(name, model vertices, image vertices)` in one call, rows
+    padded to `V` matches and `Hn` rows; rows with fewer than 4 matches come back
+    rejected."""
+    model, image, mask = _padded(rows, models, points, V, Hn)
+    with jax.enable_x64(True):
+        out = _verify_batch(
+            jnp.asarray(C),
+            jnp.asarray(model),
+            jnp.asarray(image),
+            jnp.asarray(mask),
+            jnp.asarray(noise, jnp.float64),
+            0.999,
+            0.8,
+            100,
+        )
+        out = jax.tree.map(np.asarray, out)
+    result = []
+    for r, (_, mv, _) in enumerate(rows):
+        k = len(mv)
+        result.append(
+            (
+                out.pose.R[r],
+                out.pose.t[r],
+                float(out.error[r]),
+                out.inliers[r, :k],
+                bool(out.accepted[r]) and k >= 4,
+                Status(int(out.status[r])),
+            )
+        )
+    return result
