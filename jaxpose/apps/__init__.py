@@ -1,5 +1,6 @@
 """Layer 6, applications: the paper's bench and experiment, model database, recognition
-hypothesis verification, click-to-3D pointing, the robot, camera calibration.
+hypothesis verification, recognition without correspondences and from keypoints,
+click-to-3D pointing, the robot, camera calibration, mesh files.
 """
 
 from ._bench import Bench as Bench
@@ -15,6 +16,8 @@ from ._calibration import calibrate_with_robot as calibrate_with_robot
 from ._calibration import dlt as dlt
 from ._calibration import led_joint_grid as led_joint_grid
 from ._calibration import simulate_led_pairs as simulate_led_pairs
+from ._detect import Detection as Detection
+from ._detect import detect as detect
 from ._mesh import read_ply as read_ply
 from ._mesh import write_ply as write_ply
 from ._models import chessboard as chessboard
@@ -34,6 +37,8 @@ from ._recognition import Verification as Verification
 from ._recognition import acceptance_thresholds as acceptance_thresholds
 from ._recognition import verify as verify
 from ._recognition import verify_hypotheses as verify_hypotheses
+from ._recognize import Recognition as Recognition
+from ._recognize import recognize as recognize
 from ._robot import JOINT_NAMES as JOINT_NAMES
 from ._robot import JointCommand as JointCommand
 from ._robot import Robot as Robot

@@ -31,11 +31,13 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..features._segments import oriented_edge_distance
 from ..geometry._pose import observations
 from ..geometry._validate import as_camera
 from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
@@ -49,7 +51,9 @@ __all__ = ["Detection", "detect"]
 
 SAMPLES = 4  # points per edge in the compiled score
 TOP = 16  # poses kept per chunk
-VERIFIED = 8  # best refined candidates verified (one compiled call)
+DEBUG = False
+VERIFIED = 8
+BINS = 8  # direction bins of the edge-distance maps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +120,9 @@ def _tables(model: Polyhedron, V: int, F: int, E: int) -> ModelTables:
         vf[list(face), f] = 1
     ef = np.zeros((E, F))
     ef[: len(model.edges), : len(model.faces)] = _edge_faces(model)
+    ev = np.zeros((E, V))
+    for e, (a, b) in enumerate(np.asarray(model.edges)):
+        ev[e, a] = ev[e, b] = 1
     ends = verts[np.asarray(model.edges)]  # (e, 2, 3)
     w = (np.arange(1, SAMPLES + 1) / (SAMPLES + 1))[None, :, None]
     samples = np.zeros((E, SAMPLES, 3))
@@ -134,6 +141,7 @@ def _tables(model: Polyhedron, V: int, F: int, E: int) -> ModelTables:
         ef,
         samples,
         pad(np.ones(len(ends)), E),
+        ev,
     )
     return ModelTables(*(jnp.asarray(a, jnp.float32) for a in arrays))
 
@@ -199,33 +207,35 @@ def _match(K, R, t, model: Polyhedron, points: np.ndarray, radius: float):
     return rows[:, 0], rows[:, 1]
 
 
-def _support(K, R, t, model: Polyhedron, vdist, edist, vertex_radius, edge_radius):
-    """How much of what the pose predicts the image holds: `(held, total)`, counting
-    each seen vertex as 1 and each seen edge as the fraction of its length (sampled
-    every 2 px) near a detected segment."""
-    H, W = edist.shape
+def _support(K, R, t, model: Polyhedron, matched: int, edist, edge_radius, min_edge):
+    """How much of what the pose predicts the image holds: `(held, total)`. Each seen
+    vertex counts 1 in `total`, in the image or not, and the `matched` ones (one to one
+    with image vertices) 1 in `held`; each seen edge at least `min_edge` px long counts
+    1 in `total` and in `held` the fraction of its length (sampled every 2 px) within
+    `edge_radius` of a detected segment of about its direction (`edist`, the
+    direction-binned maps; outside the image: not held). Shorter edges,
+    seen nearly end-on, say nothing either way."""
+    bins, H, W = edist.shape
     seen = set(seen_vertices(model, R, t, np.zeros(3)).tolist())
-    cam = np.asarray(model.vertices) @ R.T + t
-    uv = cam @ K.T
-    uv = uv[:, :2] / np.where(uv[:, 2:] > 0, uv[:, 2:], 1)
+    uv = _pixels(K, R, t, model.vertices)
 
-    def lookup(p):
+    def lookup(p, direction):
+        angle = math.atan2(direction[1], direction[0]) % math.pi
+        b = min(int(angle * bins / math.pi), bins - 1)
         inside = (p[:, 0] >= 0) & (p[:, 1] >= 0) & (p[:, 0] < W) & (p[:, 1] < H)
         ij = np.clip(np.floor(p).astype(np.int64), 0, [W - 1, H - 1])
-        return np.where(inside, edist[ij[:, 1], ij[:, 0]], np.inf)
+        return np.where(inside, edist[b, ij[:, 1], ij[:, 0]], np.inf)
 
-    total, held = 0.0, 0.0
-    for v in seen:
-        p = uv[v]
-        if 0 <= p[0] < W and 0 <= p[1] < H:
-            total += 1
-            held += vdist[int(p[1]), int(p[0])] <= vertex_radius
+    total, held = float(len(seen)), float(matched)
     for a, b in np.asarray(model.edges):
         if int(a) not in seen or int(b) not in seen:
             continue
-        n = max(2, int(np.linalg.norm(uv[b] - uv[a]) / 2))
+        length = float(np.linalg.norm(uv[b] - uv[a]))
+        if length < min_edge:
+            continue
+        n = max(2, int(length / 2))
         w = (np.arange(n) + 0.5)[:, None] / n
-        d = lookup(uv[a] * (1 - w) + uv[b] * w)
+        d = lookup(uv[a] * (1 - w) + uv[b] * w, uv[b] - uv[a])
         total += 1
         held += float(np.mean(d <= edge_radius))
     return held, total
@@ -250,11 +260,13 @@ def _check_database(database) -> dict[str, Polyhedron]:
 def _check_primitives(primitives) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     try:
         points = np.asarray(primitives.vertices.points, np.float64).reshape(-1, 2)
+        _ = primitives.segments.ends
         links = np.asarray(primitives.links, bool)
         edist = np.asarray(primitives.distance, np.float32)
     except (AttributeError, TypeError, ValueError) as exc:
         raise ValueError(
-            "primitives must have vertices.points (V, 2), links (V, V) and distance (H, W)"
+            "primitives must have vertices.points (V, 2), links (V, V), segments.ends "
+            "(S, 2, 2) and distance (H, W)"
         ) from exc
     if links.shape != (len(points), len(points)):
         raise ValueError(f"primitives.links must be ({len(points)}, {len(points)})")
@@ -280,13 +292,14 @@ def detect(
     primitives,
     database,
     *,
-    noise: float = 1.0,
+    noise: float = 2.0,
     vertex_radius: float = 4.0,
     edge_radius: float = 2.0,
     max_ratio: float = 4.0,
+    min_edge: float = 10.0,
     candidates: int = 6,
     min_vertices: int = 5,
-    min_support: float = 0.6,
+    min_support: float = 0.5,
     max_detections: int = 5,
     chunk: int = 1024,
 ) -> list[Detection]:
@@ -301,6 +314,7 @@ def detect(
     - `vertex_radius`, `edge_radius`: px within which a predicted vertex / edge point
       counts as held by the image.
     - `max_ratio`: the pairing filter on edge-length ratios (see the module docstring).
+    - `min_edge`: edges shorter than this in the image (px) are not scored.
     - `candidates`: distinct poses of each model refined and verified.
     - `min_vertices`, `min_support`: the acceptance of a detection.
     - `max_detections`: at most this many detections.
@@ -315,6 +329,7 @@ def detect(
     vertex_radius = _positive("vertex_radius", vertex_radius)
     edge_radius = _positive("edge_radius", edge_radius)
     max_ratio = _positive("max_ratio", max_ratio)
+    min_edge = _positive("min_edge", min_edge)
     for name, value in (
         ("candidates", candidates),
         ("min_vertices", min_vertices),
@@ -332,6 +347,7 @@ def detect(
     K, Rc, tc, _ = (np.asarray(a, np.float64) for a in decompose_camera(jnp.asarray(C)))
     H, W = edist.shape
     vdist = _vertex_distance(points, (H, W))
+    edist = oriented_edge_distance(primitives.segments, (H, W), BINS)
     paths = _image_paths(links)
     if len(paths) == 0:
         return []
@@ -343,7 +359,7 @@ def detect(
     F = _round_up(max(len(m.faces) for m in models.values()))
     E = _round_up(max(len(m.edges) for m in models.values()))
     maps = (jnp.asarray(vdist.reshape(-1)), jnp.asarray(edist.reshape(-1)))
-    radii = (jnp.float32(vertex_radius), jnp.float32(edge_radius))
+    radii = (jnp.float32(vertex_radius), jnp.float32(edge_radius), jnp.float32(min_edge))
     found: list[tuple[float, str, np.ndarray, np.ndarray]] = []
     for name, model in models.items():
         mpaths = _paths(model)
@@ -386,27 +402,18 @@ def detect(
             found.append((s, name, R, t))
     if not found:
         return []
-    rows = _round_up(candidates * len(models))
-    return _refine(
-        C,
-        K,
-        Rc,
-        tc,
-        found,
-        models,
-        points,
-        vdist,
-        edist,
+    settings = _Settings(
         noise,
         vertex_radius,
         edge_radius,
+        min_edge,
         min_vertices,
         float(min_support),
         max_detections,
         V,
-        rows,
-        VERIFIED,
+        _round_up(candidates * len(models)),
     )
+    return _refine(C, K, Rc, tc, found, models, points, edist, settings)
 
 
 def _pixels(K, R, t, vertices) -> np.ndarray:
@@ -415,7 +422,7 @@ def _pixels(K, R, t, vertices) -> np.ndarray:
     return uv[:, :2] / np.where(np.abs(uv[:, 2:]) > 1e-12, uv[:, 2:], 1e-12)
 
 
-def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 3.0):
+def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 8.0):
     """The best `count` poses, skipping any whose vertices project within `tolerance`
     px (RMS) of a better one's."""
     out: list[tuple[float, np.ndarray, np.ndarray]] = []
@@ -457,26 +464,22 @@ def _padded(rows, models, points, V: int, Hn: int):
     return model, image, mask
 
 
-def _refine(
-    C,
-    K,
-    Rc,
-    tc,
-    found,
-    models,
-    points,
-    vdist,
-    edist,
-    noise,
-    vertex_radius,
-    edge_radius,
-    min_vertices,
-    min_support,
-    max_detections,
-    V,
-    Hn,
-    verified,
-):
+class _Settings(NamedTuple):
+    noise: float
+    vertex_radius: float
+    edge_radius: float
+    min_edge: float
+    min_vertices: int
+    min_support: float
+    max_detections: int
+    V: int  # matches per padded row
+    rows: int  # rows of the refinement's padded batch
+
+
+def _refine(C, K, Rc, tc, found, models, points, edist, settings: _Settings):
+    noise, vertex_radius, edge_radius, min_edge = settings[:4]
+    min_vertices, min_support, max_detections, V, Hn = settings[4:]
+    verified = VERIFIED
     # Camera-frame poses to world (x_cam = Rc x_world + tc) and back.
     to_cam = lambda R, t: (Rc @ R, Rc @ t + tc)  # noqa: E731
     Rw = np.stack([Rc.T @ R for _, _, R, _ in found])
@@ -504,9 +507,9 @@ def _refine(
         mv, iv = _match(K, *to_cam(R, t), models[n], points, vertex_radius)
         if len(mv) < min_vertices:
             continue
-        held, total = _support(
-            K, *to_cam(R, t), models[n], vdist, edist, vertex_radius, edge_radius
-        )
+        held, total = _support(K, *to_cam(R, t), models[n], len(mv), edist, edge_radius, min_edge)
+        if DEBUG:
+            print("refined", n, len(mv), held, total)
         if total and held >= min_support * total:
             ranked.append((held, total, n, mv, iv))
     ranked.sort(key=lambda r: -r[0])
@@ -520,10 +523,12 @@ def _refine(
     for (_, _, name, mv, iv), (Rv, tv, error, inliers, accepted, status) in zip(
         ranked, out, strict=True
     ):
+        if DEBUG:
+            print("verified", name, accepted, np.sum(inliers), len(mv), error, status)
         if not accepted or np.sum(inliers) < min_vertices:
             continue
         held, total = _support(
-            K, *to_cam(Rv, tv), models[name], vdist, edist, vertex_radius, edge_radius
+            K, *to_cam(Rv, tv), models[name], int(np.sum(inliers)), edist, edge_radius, min_edge
         )
         if held < min_support * total:
             continue

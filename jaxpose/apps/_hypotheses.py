@@ -48,7 +48,7 @@ class ModelTables(NamedTuple):
     unit normals and `offsets` `(F,)` (`n . p` for a point `p` of the face), unused
     faces with a zero normal and offset 1 (never front-facing); `vertex_faces` `(V, F)`
     and `edge_faces` `(E, F)` incidences (0/1); `samples` `(E, S, 3)` points along each
-    edge; `edge_mask` `(E,)`.
+    edge; `edge_mask` `(E,)`; `edge_vertices` `(E, V)` the edges' two end points (0/1).
     """
 
     vertices: Float[Array, "V 3"]
@@ -59,6 +59,7 @@ class ModelTables(NamedTuple):
     edge_faces: Float[Array, "E F"]
     samples: Float[Array, "E S 3"]
     edge_mask: Float[Array, " E"]
+    edge_vertices: Float[Array, "E V"]
 
 
 class Scored(NamedTuple):
@@ -73,12 +74,20 @@ class Scored(NamedTuple):
     t: Float[Array, "top 3"]
 
 
-def _gather(distance, u, v, width: int, height: int):
-    """The map's value at pixel `(u, v)` (nearest pixel), `inf` outside the image."""
+def _gather(distance, u, v, width: int, height: int, offset: Array | int = 0):
+    """The map's value at pixel `(u, v)` (nearest pixel; `offset` selects a map of a
+    stack), `inf` outside the image."""
     inside = (u >= 0) & (v >= 0) & (u < width) & (v < height)
     iu = jnp.clip(jnp.floor(u), 0, width - 1).astype(jnp.int32)
     iv = jnp.clip(jnp.floor(v), 0, height - 1).astype(jnp.int32)
-    return jnp.where(inside, distance[iv * width + iu], jnp.inf)
+    return jnp.where(inside, distance[offset + iv * width + iu], jnp.inf)
+
+
+def _signs(incidence):
+    """`+1` on each row's first end point, `-1` on its second (rows of an `(E, V)` 0/1
+    incidence), so that the incidence times the signs takes differences."""
+    first = jnp.cumsum(incidence, axis=1) == 1
+    return jnp.where(first, 1, -1).astype(incidence.dtype)
 
 
 def _project(K, R, t, x, y, z):
@@ -100,9 +109,10 @@ def score_paths(
     pair_mask: Float[Array, " C"],
     tables: ModelTables,
     vertex_distance: Float[Array, " HW"],
-    edge_distance: Float[Array, " HW"],
+    edge_distance: Float[Array, " BHW"],
     vertex_radius: Float[Array, ""],
     edge_radius: Float[Array, ""],
+    min_edge: Float[Array, ""],
     *,
     width: int,
     height: int,
@@ -116,9 +126,12 @@ def score_paths(
     - `points`: `(C, 3, 3)` the model path's vertices.
     - `pair_mask`: `(C,)` 1 for real pairings (the rest is padding).
     - `tables`: the model's `ModelTables`.
-    - `vertex_distance`, `edge_distance`: `(height * width,)` maps, row-major: the
-      distance (px) from each pixel to the nearest image vertex / detected segment.
-    - `vertex_radius`, `edge_radius`: hit radii (px).
+    - `vertex_distance`: `(height * width,)`, row-major: the distance (px) from each
+      pixel to the nearest image vertex; `edge_distance`: `(bins * height * width,)`,
+      `bins` such maps to the nearest detected segment of each direction bin
+      (`jaxpose.features.oriented_edge_distance`); a predicted edge looks up its own.
+    - `vertex_radius`, `edge_radius`: hit radii (px); `min_edge`: the shortest edge (px)
+      that counts.
     - `width`, `height`: the maps' size; `top`: poses kept.
 
     **Returns:** `Scored`.
@@ -148,14 +161,24 @@ def score_paths(
     m = tables.vertices
     u, v, ahead = _project(K, R, t, *(m[None, None, :, i] for i in range(3)))
     d = _gather(vertex_distance, u, v, width, height)
-    inside = jnp.isfinite(d)
-    seen_v = seen_v & ahead & inside
+    # An edge counts when seen and at least `min_edge` px long in the image (a pose that
+    # shrinks the model onto a few image features explains nothing); a vertex when it
+    # ends a counted edge and lies in the image.
+    du = jnp.einsum("cpv,ev->cpe", u, tables.edge_vertices * _signs(tables.edge_vertices))
+    dv = jnp.einsum("cpv,ev->cpe", v, tables.edge_vertices * _signs(tables.edge_vertices))
+    seen_e = seen_e & (du * du + dv * dv >= min_edge * min_edge)
+    ends = jnp.einsum("cpe,ev->cpv", seen_e.astype(dtype), tables.edge_vertices) > 0
+    seen_v = seen_v & ends & ahead & jnp.isfinite(d)
     hits = jnp.sum(seen_v & (d <= vertex_radius), axis=-1)
 
     E, S = tables.samples.shape[:2]
+    bins = edge_distance.shape[0] // (width * height)
+    angle = jnp.mod(jnp.arctan2(dv, du), jnp.pi)
+    which = jnp.clip(jnp.floor(angle * (bins / jnp.pi)), 0, bins - 1).astype(jnp.int32)
+    offset = jnp.repeat(which * (width * height), S, axis=-1)  # (C, 4, E * S)
     s = tables.samples.reshape(E * S, 3)
     u, v, ahead = _project(K, R, t, *(s[None, None, :, i] for i in range(3)))
-    covered = (_gather(edge_distance, u, v, width, height) <= edge_radius) & ahead
+    covered = (_gather(edge_distance, u, v, width, height, offset) <= edge_radius) & ahead
     fraction = jnp.mean(covered.reshape(*covered.shape[:2], E, S).astype(dtype), axis=-1)
     covered_e = jnp.sum(jnp.where(seen_e, fraction, 0), axis=-1)
 

@@ -1,5 +1,5 @@
-"""Layer 8, the command line `jaxpose` (`reproduce`, `bench`, `solve`, `point`) and its problem
-files.
+"""Layer 8, the command line `jaxpose` (`reproduce`, `bench`, `solve`, `point`, `recognize`,
+`warmup`) and its problem files.
 """
 
 from ._main import build_parser as build_parser

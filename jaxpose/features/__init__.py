@@ -15,6 +15,7 @@ from ._segments import Segments as Segments
 from ._segments import chain_segments as chain_segments
 from ._segments import detect_segments as detect_segments
 from ._segments import edge_distance as edge_distance
+from ._segments import oriented_edge_distance as oriented_edge_distance
 from ._vertices import Primitives as Primitives
 from ._vertices import Vertices as Vertices
 from ._vertices import find_vertices as find_vertices

@@ -339,3 +339,28 @@ def edge_distance(segments: Segments, shape) -> np.ndarray:
         return np.full((h, w), math.hypot(h, w), dtype=np.float32)
     distance = cv2.distanceTransform(mask, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return np.asarray(distance, dtype=np.float32)
+
+
+def oriented_edge_distance(segments: Segments, shape, bins: int = 8) -> np.ndarray:
+    """`edge_distance` by direction: map `b` holds the distance to the segments whose
+    direction (modulo 180 degrees) lies within one bin width (`180 / bins` degrees) of
+    bin `b`'s centre, `(b + 0.5) * 180 / bins`. A predicted edge of direction `phi`
+    looks up map `floor(phi / (180 / bins))`: segments within half a bin to one and a
+    half bins of its direction count, crossing ones do not.
+
+    **Arguments:** `segments`; `shape` as `edge_distance`; `bins` (>= 2).
+
+    **Returns:** float32 `(bins, h, w)`.
+    """
+    segments = _check_segments(segments)
+    if isinstance(bins, bool) or not isinstance(bins, int | np.integer) or bins < 2:
+        raise ValueError(f"bins must be an integer >= 2, got {bins!r}")
+    width = math.pi / bins
+    d = segments.ends[:, 1] - segments.ends[:, 0]
+    angle = np.mod(np.arctan2(d[:, 1], d[:, 0]), math.pi)
+    maps = []
+    for b in range(bins):
+        off = np.abs(np.mod(angle - (b + 0.5) * width + math.pi / 2, math.pi) - math.pi / 2)
+        keep = off <= width
+        maps.append(edge_distance(Segments(*(f[keep] for f in segments)), shape))
+    return np.stack(maps)

@@ -10,6 +10,8 @@ from ._overlay import render_bench as render_bench
 from ._rerun_experiment import log_experiment as log_experiment
 from ._rerun_layout import rerun_blueprint as rerun_blueprint
 from ._rerun_pointing import log_pointing as log_pointing
+from ._rerun_recognition import log_recognition as log_recognition
+from ._rerun_recognition import recognition_blueprint as recognition_blueprint
 from ._rerun_recording import close_recording as close_recording
 from ._rerun_recording import rerun_recording as rerun_recording
 from ._rerun_solution import log_solution as log_solution
