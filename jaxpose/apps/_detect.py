@@ -181,30 +181,83 @@ def _length_ratio(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- refinement
 
 
-def _match(K, R, t, model: Polyhedron, points: np.ndarray, radius: float):
+def _directions(primitives, points: np.ndarray) -> np.ndarray:
+    """`(V, 3, 2)` unit directions of the segments leaving each image vertex (towards
+    each segment's far end), zero rows for padding."""
+    out = np.zeros((len(points), 3, 2))
+    index = np.asarray(primitives.vertices.segments, np.int64).reshape(len(points), -1)
+    ends = np.asarray(primitives.segments.ends, np.float64).reshape(-1, 2, 2)
+    for v, row in enumerate(index[:, :3]):
+        for k, s in enumerate(row):
+            if s < 0:
+                continue
+            far = ends[s, np.argmax(np.linalg.norm(ends[s] - points[v], axis=1))]
+            d = far - points[v]
+            n = np.hypot(*d)
+            if n > 1e-9:
+                out[v, k] = d / n
+    return out
+
+
+def _agrees(predicted: np.ndarray, found: np.ndarray, cos_tol: float) -> bool:
+    """Whether an image vertex's segment directions `found` `(3, 2)` hold the predicted
+    edge directions `predicted` `(k, 2)`: at least `min(k, 2)` of them within the
+    tolerance (a junction says which way its edges go; a corner of clutter rarely
+    agrees with two predicted edges at once)."""
+    if len(predicted) == 0:
+        return True
+    hits = np.sum(np.max(predicted @ found.T, axis=1) >= cos_tol)
+    return bool(hits >= min(len(predicted), 2))
+
+
+def _match(K, R, t, model: Polyhedron, points: np.ndarray, directions, radius: float):
     """Model vertices seen at camera-frame pose `(R, t)` matched one to one to the
-    nearest image vertices within `radius` px (closest pairs first)."""
+    nearest image vertices within `radius` px (closest pairs first) whose segments
+    leave in the directions of the vertex's projected edges (`_agrees`, 20 degrees)."""
     seen = seen_vertices(model, R, t, np.zeros(3))
     if len(seen) == 0 or len(points) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    cam = np.asarray(model.vertices)[seen] @ R.T + t
-    uv = cam @ K.T
-    uv = uv[:, :2] / np.where(uv[:, 2:] > 0, uv[:, 2:], 1)
+    uv_all = _pixels(K, R, t, model.vertices)
+    uv = uv_all[seen]
+    seen_set = set(seen.tolist())
+    neighbours: dict[int, list[int]] = {int(v): [] for v in seen}
+    for a, b in np.asarray(model.edges):
+        if int(a) in seen_set and int(b) in seen_set:
+            neighbours[int(a)].append(int(b))
+            neighbours[int(b)].append(int(a))
     d = np.linalg.norm(uv[:, None] - points[None], axis=-1)
     order = np.argsort(d, axis=None)
     used_m, used_i, pairs = set(), set(), []
+    cos_tol = math.cos(math.radians(20.0))
     for flat in order:
         m, i = divmod(int(flat), len(points))
         if d[m, i] > radius:
             break
         if m in used_m or i in used_i:
             continue
+        v = int(seen[m])
+        predicted = np.array([uv_all[n] - uv_all[v] for n in neighbours[v]]).reshape(-1, 2)
+        length = np.linalg.norm(predicted, axis=1)
+        predicted = predicted[length >= 3] / length[length >= 3, None]
+        if not _agrees(predicted, directions[i], cos_tol):
+            continue
         used_m.add(m)
         used_i.add(i)
-        pairs.append((seen[m], i))
+        pairs.append((v, i))
     pairs.sort()
     rows = np.array(pairs, dtype=np.int64).reshape(-1, 2)
     return rows[:, 0], rows[:, 1]
+
+
+def _distinct_count(pixels: np.ndarray, spacing: float) -> int:
+    """How many of the matched pixels stand apart: greedily, those at least `spacing`
+    px from every one kept before (a cluster of image vertices, as the two borders of
+    one drawn line give, counts once)."""
+    kept: list[np.ndarray] = []
+    for p in pixels:
+        if all(np.hypot(*(p - q)) >= spacing for q in kept):
+            kept.append(p)
+    return len(kept)
 
 
 def _support(K, R, t, model: Polyhedron, matched: int, edist, edge_radius, min_edge):
@@ -413,7 +466,8 @@ def detect(
         V,
         _round_up(candidates * len(models)),
     )
-    return _refine(C, K, Rc, tc, found, models, points, edist, settings)
+    directions = _directions(primitives, points)
+    return _refine(C, K, Rc, tc, found, models, points, directions, edist, settings)
 
 
 def _pixels(K, R, t, vertices) -> np.ndarray:
@@ -476,7 +530,7 @@ class _Settings(NamedTuple):
     rows: int  # rows of the refinement's padded batch
 
 
-def _refine(C, K, Rc, tc, found, models, points, edist, settings: _Settings):
+def _refine(C, K, Rc, tc, found, models, points, directions, edist, settings: _Settings):
     noise, vertex_radius, edge_radius, min_edge = settings[:4]
     min_vertices, min_support, max_detections, V, Hn = settings[4:]
     verified = VERIFIED
@@ -487,7 +541,7 @@ def _refine(C, K, Rc, tc, found, models, points, edist, settings: _Settings):
     names = [name for _, name, _, _ in found]
     for radius in (2 * vertex_radius, vertex_radius):
         rows = [
-            (n, *_match(K, *to_cam(R, t), models[n], points, radius))
+            (n, *_match(K, *to_cam(R, t), models[n], points, directions, radius))
             for n, R, t in zip(names, Rw, tw, strict=True)
         ]
         model, image, mask = _padded(rows, models, points, V, Hn)
@@ -504,10 +558,11 @@ def _refine(C, K, Rc, tc, found, models, points, edist, settings: _Settings):
         Rw, tw = np.asarray(R1)[: len(rows)], np.asarray(t1)[: len(rows)]
     ranked = []
     for n, R, t in zip(names, Rw, tw, strict=True):
-        mv, iv = _match(K, *to_cam(R, t), models[n], points, vertex_radius)
-        if len(mv) < min_vertices:
+        mv, iv = _match(K, *to_cam(R, t), models[n], points, directions, vertex_radius)
+        distinct = _distinct_count(points[iv], 2 * vertex_radius)
+        if distinct < min_vertices:
             continue
-        held, total = _support(K, *to_cam(R, t), models[n], len(mv), edist, edge_radius, min_edge)
+        held, total = _support(K, *to_cam(R, t), models[n], distinct, edist, edge_radius, min_edge)
         if DEBUG:
             print("refined", n, len(mv), held, total)
         if total and held >= min_support * total:
@@ -525,10 +580,11 @@ def _refine(C, K, Rc, tc, found, models, points, edist, settings: _Settings):
     ):
         if DEBUG:
             print("verified", name, accepted, np.sum(inliers), len(mv), error, status)
-        if not accepted or np.sum(inliers) < min_vertices:
+        distinct = _distinct_count(points[iv[inliers]], 2 * vertex_radius)
+        if not accepted or distinct < min_vertices:
             continue
         held, total = _support(
-            K, *to_cam(Rv, tv), models[name], int(np.sum(inliers)), edist, edge_radius, min_edge
+            K, *to_cam(Rv, tv), models[name], distinct, edist, edge_radius, min_edge
         )
         if held < min_support * total:
             continue
