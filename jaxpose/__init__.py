@@ -5,12 +5,14 @@ The entry points a user needs are here; everything else is reachable through the
 subpackages, one per layer, imports pointing down: `geometry` (rotations, camera, pose,
 errors), `solvers` (one method for one problem per module), `strategy` (all triplets at
 once: the mixed algorithm, robust mode, covariance, options), `api` (the entry points and
-batching), `apps` (the paper's experiment, models, recognition, pointing, robot,
+batching), `features` (the image front end: segments, vertices, keypoints, model and camera
+files), `apps` (the paper's experiment, models, recognition, pointing, robot,
 calibration), `viz` (rerun, overlays, figures); `jaxpose.cli` is the command line.
 """
 
 from . import api as api
 from . import apps as apps
+from . import features as features
 from . import geometry as geometry
 from . import solvers as solvers
 from . import strategy as strategy

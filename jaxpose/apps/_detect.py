@@ -28,57 +28,30 @@ polyhedral models. No match is given.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..features._segments import oriented_edge_distance
-from ..geometry._pose import observations
 from ..geometry._validate import as_camera
-from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
-from ..solvers._kernel_linear import linear_kernel, matches_from_observations
-from ..solvers._status import Status
+from ._detect_verify import (
+    Detection,
+    Settings,
+    project_vertices,
+    refine_and_verify,
+    vertex_directions,
+)
 from ._hypotheses import ModelTables, score_paths
-from ._polyhedron import Polyhedron, polygon_normals, seen_vertices
-from ._recognition import _verify_batch
+from ._polyhedron import Polyhedron, polygon_normals
 
 __all__ = ["Detection", "detect"]
 
 SAMPLES = 4  # points per edge in the compiled score
 TOP = 16  # poses kept per chunk
-DEBUG = False
-VERIFIED = 8
 BINS = 8  # direction bins of the edge-distance maps
-
-
-@dataclasses.dataclass(frozen=True)
-class Detection:
-    """One recognised object.
-
-    **Fields:** `model` (name); `R`, `t` (model to world, the camera's world frame);
-    `score` (what the image holds of the pose's prediction: each seen vertex near an
-    image vertex counts 1, each seen edge the fraction of its length near a detected
-    segment; the ranking score); `support` (`score` over what the pose predicts, in
-    `[0, 1]`); `vertices` `(k,)` model vertex indices matched to `image_vertices`
-    `(k,)` indices into the primitives' vertices, at `pixels` `(k, 2)`; `error` (Eq. 8
-    over the matches, px); `status` (the verification's).
-    """
-
-    model: str
-    R: np.ndarray
-    t: np.ndarray
-    score: float
-    support: float
-    vertices: np.ndarray
-    image_vertices: np.ndarray
-    pixels: np.ndarray
-    error: float
-    status: Status
 
 
 # --------------------------------------------------------------------------- the models
@@ -181,122 +154,6 @@ def _length_ratio(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- refinement
 
 
-def _directions(primitives, points: np.ndarray) -> np.ndarray:
-    """`(V, 3, 2)` unit directions of the segments leaving each image vertex (towards
-    each segment's far end), zero rows for padding."""
-    out = np.zeros((len(points), 3, 2))
-    index = np.asarray(primitives.vertices.segments, np.int64).reshape(len(points), -1)
-    ends = np.asarray(primitives.segments.ends, np.float64).reshape(-1, 2, 2)
-    for v, row in enumerate(index[:, :3]):
-        for k, s in enumerate(row):
-            if s < 0:
-                continue
-            far = ends[s, np.argmax(np.linalg.norm(ends[s] - points[v], axis=1))]
-            d = far - points[v]
-            n = np.hypot(*d)
-            if n > 1e-9:
-                out[v, k] = d / n
-    return out
-
-
-def _agrees(predicted: np.ndarray, found: np.ndarray, cos_tol: float) -> bool:
-    """Whether an image vertex's segment directions `found` `(3, 2)` hold the predicted
-    edge directions `predicted` `(k, 2)`: at least `min(k, 2)` of them within the
-    tolerance (a junction says which way its edges go; a corner of clutter rarely
-    agrees with two predicted edges at once)."""
-    if len(predicted) == 0:
-        return True
-    hits = np.sum(np.max(predicted @ found.T, axis=1) >= cos_tol)
-    return bool(hits >= min(len(predicted), 2))
-
-
-def _match(K, R, t, model: Polyhedron, points: np.ndarray, directions, radius: float):
-    """Model vertices seen at camera-frame pose `(R, t)` matched one to one to the
-    nearest image vertices within `radius` px (closest pairs first) whose segments
-    leave in the directions of the vertex's projected edges (`_agrees`, 20 degrees)."""
-    seen = seen_vertices(model, R, t, np.zeros(3))
-    if len(seen) == 0 or len(points) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    uv_all = _pixels(K, R, t, model.vertices)
-    uv = uv_all[seen]
-    seen_set = set(seen.tolist())
-    neighbours: dict[int, list[int]] = {int(v): [] for v in seen}
-    for a, b in np.asarray(model.edges):
-        if int(a) in seen_set and int(b) in seen_set:
-            neighbours[int(a)].append(int(b))
-            neighbours[int(b)].append(int(a))
-    d = np.linalg.norm(uv[:, None] - points[None], axis=-1)
-    order = np.argsort(d, axis=None)
-    used_m, used_i, pairs = set(), set(), []
-    cos_tol = math.cos(math.radians(20.0))
-    for flat in order:
-        m, i = divmod(int(flat), len(points))
-        if d[m, i] > radius:
-            break
-        if m in used_m or i in used_i:
-            continue
-        v = int(seen[m])
-        predicted = np.array([uv_all[n] - uv_all[v] for n in neighbours[v]]).reshape(-1, 2)
-        length = np.linalg.norm(predicted, axis=1)
-        predicted = predicted[length >= 3] / length[length >= 3, None]
-        if not _agrees(predicted, directions[i], cos_tol):
-            continue
-        used_m.add(m)
-        used_i.add(i)
-        pairs.append((v, i))
-    pairs.sort()
-    rows = np.array(pairs, dtype=np.int64).reshape(-1, 2)
-    return rows[:, 0], rows[:, 1]
-
-
-def _distinct_count(pixels: np.ndarray, spacing: float) -> int:
-    """How many of the matched pixels stand apart: greedily, those at least `spacing`
-    px from every one kept before (a cluster of image vertices, as the two borders of
-    one drawn line give, counts once)."""
-    kept: list[np.ndarray] = []
-    for p in pixels:
-        if all(np.hypot(*(p - q)) >= spacing for q in kept):
-            kept.append(p)
-    return len(kept)
-
-
-def _support(K, R, t, model: Polyhedron, matched: int, edist, edge_radius, min_edge):
-    """How much of what the pose predicts the image holds: `(held, total)`. Each seen
-    vertex counts 1 in `total`, in the image or not, and the `matched` ones (one to one
-    with image vertices) 1 in `held`; each seen edge at least `min_edge` px long counts
-    1 in `total` and in `held` the fraction of its length (sampled every 2 px) within
-    `edge_radius` of a detected segment of about its direction (`edist`, the
-    direction-binned maps; outside the image: not held). Shorter edges,
-    seen nearly end-on, say nothing either way."""
-    bins, H, W = edist.shape
-    seen = set(seen_vertices(model, R, t, np.zeros(3)).tolist())
-    uv = _pixels(K, R, t, model.vertices)
-
-    def lookup(p, direction):
-        angle = math.atan2(direction[1], direction[0]) % math.pi
-        b = min(int(angle * bins / math.pi), bins - 1)
-        inside = (p[:, 0] >= 0) & (p[:, 1] >= 0) & (p[:, 0] < W) & (p[:, 1] < H)
-        ij = np.clip(np.floor(p).astype(np.int64), 0, [W - 1, H - 1])
-        return np.where(inside, edist[b, ij[:, 1], ij[:, 0]], np.inf)
-
-    total, held = float(len(seen)), float(matched)
-    for a, b in np.asarray(model.edges):
-        if int(a) not in seen or int(b) not in seen:
-            continue
-        length = float(np.linalg.norm(uv[b] - uv[a]))
-        if length < min_edge:
-            continue
-        n = max(2, int(length / 2))
-        w = (np.arange(n) + 0.5)[:, None] / n
-        d = lookup(uv[a] * (1 - w) + uv[b] * w, uv[b] - uv[a])
-        total += 1
-        held += float(np.mean(d <= edge_radius))
-    return held, total
-
-
-# --------------------------------------------------------------------------- the entry point
-
-
 def _check_database(database) -> dict[str, Polyhedron]:
     if isinstance(database, Polyhedron):
         database = {database.name: database}
@@ -351,8 +208,8 @@ def detect(
     max_ratio: float = 4.0,
     min_edge: float = 10.0,
     candidates: int = 6,
-    min_vertices: int = 5,
-    min_support: float = 0.5,
+    min_vertices: int = 7,
+    min_support: float = 0.45,
     max_detections: int = 5,
     chunk: int = 1024,
 ) -> list[Detection]:
@@ -393,7 +250,6 @@ def detect(
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if not 0 <= float(min_support) <= 1:
         raise ValueError(f"min_support must lie in [0, 1], got {min_support!r}")
-    min_vertices = max(int(min_vertices), 4)
 
     from ..geometry._camera import decompose_camera
 
@@ -455,7 +311,7 @@ def detect(
             found.append((s, name, R, t))
     if not found:
         return []
-    settings = _Settings(
+    settings = Settings(
         noise,
         vertex_radius,
         edge_radius,
@@ -466,14 +322,8 @@ def detect(
         V,
         _round_up(candidates * len(models)),
     )
-    directions = _directions(primitives, points)
-    return _refine(C, K, Rc, tc, found, models, points, directions, edist, settings)
-
-
-def _pixels(K, R, t, vertices) -> np.ndarray:
-    cam = np.asarray(vertices) @ R.T + t
-    uv = cam @ K.T
-    return uv[:, :2] / np.where(np.abs(uv[:, 2:]) > 1e-12, uv[:, 2:], 1e-12)
+    directions = vertex_directions(primitives, points)
+    return refine_and_verify(C, K, Rc, tc, found, models, points, directions, edist, settings)
 
 
 def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 8.0):
@@ -482,7 +332,7 @@ def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 8.0):
     out: list[tuple[float, np.ndarray, np.ndarray]] = []
     shown: list[np.ndarray] = []
     for s, R, t in kept:
-        uv = _pixels(K, R, t, model.vertices)
+        uv = project_vertices(K, R, t, model.vertices)
         if any(np.sqrt(np.mean(np.sum((uv - o) ** 2, axis=1))) < tolerance for o in shown):
             continue
         out.append((s, R, t))
@@ -490,158 +340,3 @@ def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 8.0):
         if len(out) == count:
             break
     return out
-
-
-@jax.jit
-def _settle(C, model, image, mask, R, t):
-    """Five steps of the linear method (Gauss-Newton on Eq. 8) from every pose `(H, 3, 3)`,
-    `(H, 3)` over its matches `(H, V, ...)` (model to world; `C` the world camera)."""
-    obs = jax.vmap(observations, in_axes=(None, 0, 0, 0))(C, model, image, mask)
-    m = matches_from_observations(obs)
-    R0 = Mat3(*(R[:, i, j] for i in range(3) for j in range(3)))
-    t0 = Vec3(*(t[:, i] for i in range(3)))
-    R1, t1, error, _, status = linear_kernel(R0, t0, m, iterations=5)
-    good = status == Status.OK
-    R1, t1 = mat_to_array(R1), vec_to_array(t1)
-    return jnp.where(good[:, None, None], R1, R), jnp.where(good[:, None], t1, t)
-
-
-def _padded(rows, models, points, V: int, Hn: int):
-    model = np.zeros((Hn, V, 3))
-    image = np.zeros((Hn, V, 2))
-    mask = np.zeros((Hn, V), bool)
-    for r, (name, mv, iv) in enumerate(rows):
-        k = len(mv)
-        model[r, :k] = np.asarray(models[name].vertices)[mv]
-        image[r, :k] = points[iv]
-        mask[r, :k] = k >= 4
-    return model, image, mask
-
-
-class _Settings(NamedTuple):
-    noise: float
-    vertex_radius: float
-    edge_radius: float
-    min_edge: float
-    min_vertices: int
-    min_support: float
-    max_detections: int
-    V: int  # matches per padded row
-    rows: int  # rows of the refinement's padded batch
-
-
-def _refine(C, K, Rc, tc, found, models, points, directions, edist, settings: _Settings):
-    noise, vertex_radius, edge_radius, min_edge = settings[:4]
-    min_vertices, min_support, max_detections, V, Hn = settings[4:]
-    verified = VERIFIED
-    # Camera-frame poses to world (x_cam = Rc x_world + tc) and back.
-    to_cam = lambda R, t: (Rc @ R, Rc @ t + tc)  # noqa: E731
-    Rw = np.stack([Rc.T @ R for _, _, R, _ in found])
-    tw = np.stack([Rc.T @ (t - tc) for _, _, _, t in found])
-    names = [name for _, name, _, _ in found]
-    for radius in (2 * vertex_radius, vertex_radius):
-        rows = [
-            (n, *_match(K, *to_cam(R, t), models[n], points, directions, radius))
-            for n, R, t in zip(names, Rw, tw, strict=True)
-        ]
-        model, image, mask = _padded(rows, models, points, V, Hn)
-        pad = Hn - len(rows)
-        with jax.enable_x64(True):
-            R1, t1 = _settle(
-                jnp.asarray(C),
-                jnp.asarray(model),
-                jnp.asarray(image),
-                jnp.asarray(mask),
-                jnp.asarray(np.concatenate([Rw, np.repeat(Rw[:1], pad, 0)])),
-                jnp.asarray(np.concatenate([tw, np.repeat(tw[:1], pad, 0)])),
-            )
-        Rw, tw = np.asarray(R1)[: len(rows)], np.asarray(t1)[: len(rows)]
-    ranked = []
-    for n, R, t in zip(names, Rw, tw, strict=True):
-        mv, iv = _match(K, *to_cam(R, t), models[n], points, directions, vertex_radius)
-        distinct = _distinct_count(points[iv], 2 * vertex_radius)
-        if distinct < min_vertices:
-            continue
-        held, total = _support(K, *to_cam(R, t), models[n], distinct, edist, edge_radius, min_edge)
-        if DEBUG:
-            print("refined", n, len(mv), held, total)
-        if total and held >= min_support * total:
-            ranked.append((held, total, n, mv, iv))
-    ranked.sort(key=lambda r: -r[0])
-    ranked = ranked[:verified]
-    if not ranked:
-        return []
-    out = _verify_rows(
-        C, [(n, mv, iv) for _, _, n, mv, iv in ranked], models, points, noise, V, verified
-    )
-    detections = []
-    for (_, _, name, mv, iv), (Rv, tv, error, inliers, accepted, status) in zip(
-        ranked, out, strict=True
-    ):
-        if DEBUG:
-            print("verified", name, accepted, np.sum(inliers), len(mv), error, status)
-        distinct = _distinct_count(points[iv[inliers]], 2 * vertex_radius)
-        if not accepted or distinct < min_vertices:
-            continue
-        held, total = _support(
-            K, *to_cam(Rv, tv), models[name], distinct, edist, edge_radius, min_edge
-        )
-        if held < min_support * total:
-            continue
-        detections.append(
-            Detection(
-                name,
-                Rv,
-                tv,
-                held,
-                held / total,
-                mv[inliers],
-                iv[inliers],
-                points[iv[inliers]],
-                error,
-                status,
-            )
-        )
-    detections.sort(key=lambda d: (-d.score, d.error))
-    chosen: list[Detection] = []
-    for d in detections:
-        used = set(d.image_vertices.tolist())
-        if any(len(used & set(c.image_vertices.tolist())) > 0.5 * len(used) for c in chosen):
-            continue
-        chosen.append(d)
-        if len(chosen) == max_detections:
-            break
-    return chosen
-
-
-def _verify_rows(C, rows, models, points, noise, V, Hn):
-    """`verify` on every row `(name, model vertices, image vertices)` in one call, rows
-    padded to `V` matches and `Hn` rows; rows with fewer than 4 matches come back
-    rejected."""
-    model, image, mask = _padded(rows, models, points, V, Hn)
-    with jax.enable_x64(True):
-        out = _verify_batch(
-            jnp.asarray(C),
-            jnp.asarray(model),
-            jnp.asarray(image),
-            jnp.asarray(mask),
-            jnp.asarray(noise, jnp.float64),
-            0.999,
-            0.8,
-            100,
-        )
-        out = jax.tree.map(np.asarray, out)
-    result = []
-    for r, (_, mv, _) in enumerate(rows):
-        k = len(mv)
-        result.append(
-            (
-                out.pose.R[r],
-                out.pose.t[r],
-                float(out.error[r]),
-                out.inliers[r, :k],
-                bool(out.accepted[r]) and k >= 4,
-                Status(int(out.status[r])),
-            )
-        )
-    return result
