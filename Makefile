@@ -33,12 +33,14 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.p3p_rate --n 100000
 	$(BIN)/python -m benchmarks.startup
 	$(BIN)/python -m benchmarks.distortion
+	$(BIN)/python -m benchmarks.recognition
 	$(BIN)/python -m benchmarks.run
 
 bench-quick: $(STAMP)
 	$(BIN)/python -m benchmarks.p3p_rate --n 20000 --out /tmp/p3p_rate_quick.json
 	$(BIN)/python -m benchmarks.startup --quick
 	$(BIN)/python -m benchmarks.distortion --quick
+	$(BIN)/python -m benchmarks.recognition --quick
 	$(BIN)/python -m benchmarks.run --quick
 
 lint: $(STAMP)

@@ -148,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{100 * TARGETS['right']:.0f}%: {res['right_verdict']}), {res['false_detections']} "
         f"false detections on {res['empty_scenes']} empty scenes ({res['false_verdict']}), "
         f"{res['seconds_per_image_median']:.2f} s per image ({res['seconds_verdict']}); box "
-        f"photograph: vertex path {box['vertex_verdict']}, keypoint path "
-        f"{box['keypoint_verdict']}"
+        f"photograph: vertex path {box['vertex_path_verdict']}, keypoint path "
+        f"{box['keypoint_path_verdict']}"
     )
     console.print(f"written: {out}")
     return 0

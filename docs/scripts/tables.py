@@ -32,6 +32,7 @@ from tables_accuracy import (  # noqa: E402
     float32_cells,
     gradients,
     p3p,
+    recognition,
     robust_bench,
     robust_random,
 )
@@ -177,6 +178,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "accuracy_medians": accuracy_medians,
     "chessboard": chessboard,
     "distortion": distortion,
+    "recognition": recognition,
     "float32": float32,
     "float32_cells": float32_cells,
     "robust_bench": robust_bench,

@@ -298,3 +298,32 @@ def distortion(results: Path) -> str:
     ]
     command = "python -m benchmarks.distortion" + (" --quick" if "quick" in name else "")
     return table(("", "jaxpose"), rows, left=2) + "\n\n" + caption(d, name, command=command)
+
+
+def recognition(results: Path) -> str:
+    """`benchmarks/recognition.py`: rendered scenes, empty scenes, the box photograph."""
+    d, name = load(results, "recognition.json", "recognition_quick.json")
+    box = d["box"]
+
+    def largest(errors) -> str:
+        return "not found" if errors is None else f"{max(errors):.2f}"
+
+    rows = [
+        ("rendered scenes (cross prism, 0-30% occluded, clutter)", f"{d['scenes']:,}"),
+        ("right model, vertices within 2 px RMS", share(d["right"], 1)),
+        ("target", f">= {share(d['right_target'], 0)}: {d['right_verdict']}"),
+        ("median vertex RMS of the right ones (px)", f"{d['median_rms_px']:.2f}"),
+        ("scenes without a model", f"{d['empty_scenes']:,}"),
+        ("false detections there (target 0)", f"{d['false_detections']}: {d['false_verdict']}"),
+        ("time per image, front end + detection (median)", duration(d["seconds_per_image_median"])),
+        ("target <= 1 s", d["seconds_verdict"]),
+        ("box photograph, mesh only: largest vertex error (px)", largest(box["vertex_path_px"])),
+        ("box photograph, ORB model: largest vertex error (px)", largest(box["keypoint_path_px"])),
+        ("the same matches, `cv2.solvePnPRansac` (px)", largest(box["opencv_ransac_px"])),
+        (
+            "target <= 3 px (mesh / ORB)",
+            f"{box['vertex_path_verdict']} / {box['keypoint_path_verdict']}",
+        ),
+    ]
+    command = "python -m benchmarks.recognition" + (" --quick" if "quick" in name else "")
+    return table(("", "jaxpose"), rows, left=2) + "\n\n" + caption(d, name, command=command)
