@@ -62,3 +62,20 @@ def _decompose(C):
 def rms_px(C, R, t, m, img):
     h = (m @ R.T + t) @ C[:, :3].T + C[:, 3]
     return float(np.sqrt(np.mean(np.sum((h[:, :2] / h[:, 2:] - img) ** 2, axis=1))))
+
+
+def chessboard_corners(path) -> tuple[np.ndarray, np.ndarray] | None:
+    """OpenCV's 9 x 6 chessboard in a photograph: the board's corners `(54, 3)` (0.025 m
+    squares, z = 0) and their pixels `(54, 2)` (`cv2.findChessboardCorners`, then
+    `cv2.cornerSubPix`), or None when the board is not found."""
+    import cv2
+
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    found, corners = cv2.findChessboardCorners(gray, (9, 6))
+    if not found:
+        return None
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
+    corners = cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), crit).reshape(-1, 2)
+    board = np.zeros((54, 3))
+    board[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2) * 0.025
+    return board, corners

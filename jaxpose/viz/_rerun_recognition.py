@@ -27,7 +27,7 @@ from ._rerun_common import (
     _summary,
     _transform,
 )
-from ._rerun_layout import _frame_object, _scene_and_image
+from ._rerun_layout import _frame_object, pointing_blueprint
 from ._rerun_scene import log_camera
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -44,19 +44,10 @@ _WINNER = _RECOVERED
 def recognition_blueprint(
     *, eye: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 ) -> rrb.Blueprint:
-    """The layout of a recognition recording (`log_recognition`): the 3D scene (camera and
-    the detected models) beside the image with its primitives and overlays, the summary
-    below."""
-    import rerun.blueprint as rrb
-
-    return rrb.Blueprint(
-        rrb.Vertical(
-            _scene_and_image(eye),
-            rrb.TextDocumentView(origin="summary", name="summary"),
-            row_shares=[4, 1],
-        ),
-        collapse_panels=True,
-    )
+    """The layout of a recognition recording (`log_recognition`): the same as a pointing
+    recording's (`pointing_blueprint`): the 3D scene (camera and the detected models)
+    beside the image with its primitives and overlays, the summary below."""
+    return pointing_blueprint(eye=eye)
 
 
 def _entity(rank: int, name: str) -> str:

@@ -7,6 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+from helpers import chessboard_corners
 
 import jaxpose as jp
 from jaxpose.cli._main import main
@@ -127,14 +128,9 @@ def test_chessboard_with_opencv_calibration_file_is_opencv_optimum(tmp_path, cap
     from pathlib import Path
 
     data = Path(__file__).parents[1] / "data" / "chessboard"
-    gray = cv2.imread(str(data / "left12.jpg"), cv2.IMREAD_GRAYSCALE)
-    assert gray is not None
-    found, corners = cv2.findChessboardCorners(gray, (9, 6))
-    assert found
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
-    corners = cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), crit).reshape(-1, 2)
-    board = np.zeros((54, 3))
-    board[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2) * 0.025
+    found = chessboard_corners(data / "left12.jpg")
+    assert found is not None
+    board, corners = found
     np.savetxt(tmp_path / "board.csv", board, delimiter=",")
     np.savetxt(tmp_path / "corners.csv", corners, delimiter=",")
     out_path = tmp_path / "pose.json"
