@@ -14,10 +14,13 @@ polyhedral models. No match is given.
    three-point solver's roots of every pairing, each scored by the model's vertices
    and edges that it predicts and the image holds, in fixed-shape chunks; each chunk
    keeps its best poses.
-3. **Refine and verify.** The best distinct poses of each model (`candidates`): their
-   seen vertices matched to the nearest image vertices, then the existing verification
-   (`verify`: the mixed algorithm over the matches and the chi-square acceptance rule),
-   twice (matches again from the verified pose, outliers dropped).
+3. **Refine and verify** (`jaxpose.apps._detect_verify`). The best distinct poses of
+   each model (`candidates`): their seen vertices matched one to one to image vertices
+   whose segments leave in the projected edges' directions, the linear method over the
+   matches (twice, all candidates in one compiled call), then the acceptance rule of
+   `verify` (chi-square bounds on the Eq. 8 error and on every residual) at the pose
+   the linear method reaches, again on the inliers alone; an accepted pose is refined
+   on the detected segments along its edges (`jaxpose.apps._detect_edges`).
 4. **Decide.** A detection's `support` is the fraction of what its pose predicts (seen
    vertices, and seen edges sampled every 2 px) that the image holds. It is reported
    when the verification accepted it, at least `min_vertices` vertices are matched
@@ -323,7 +326,8 @@ def detect(
         _round_up(candidates * len(models)),
     )
     directions = vertex_directions(primitives, points)
-    return refine_and_verify(C, K, Rc, tc, found, models, points, directions, edist, settings)
+    ends = np.asarray(primitives.segments.ends, np.float64).reshape(-1, 2, 2)
+    return refine_and_verify(C, K, Rc, tc, found, models, points, directions, edist, ends, settings)
 
 
 def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 8.0):

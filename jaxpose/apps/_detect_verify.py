@@ -27,6 +27,7 @@ from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
 from ..solvers._kernel_linear import linear_kernel, matches_from_observations
 from ..solvers._residuals import pixel_residuals
 from ..solvers._status import Status
+from ._detect_edges import refine_on_edges
 from ._polyhedron import Polyhedron, seen_vertices
 from ._recognition import acceptance_thresholds
 
@@ -229,7 +230,9 @@ class Settings(NamedTuple):
     rows: int  # rows of the refinement's padded batch
 
 
-def refine_and_verify(C, K, Rc, tc, found, models, points, directions, edist, settings: Settings):
+def refine_and_verify(
+    C, K, Rc, tc, found, models, points, directions, edist, ends, settings: Settings
+):
     """The detections from `found` (`(score, name, R, t)`, camera-frame poses), best
     first (see the module docstring)."""
     noise, vertex_radius, edge_radius, min_edge = settings[:4]
@@ -274,11 +277,30 @@ def refine_and_verify(C, K, Rc, tc, found, models, points, directions, edist, se
         return []
     poses = (np.stack([r[5] for r in ranked]), np.stack([r[6] for r in ranked]))
     out = _verify_rows(C, [r[2:5] for r in ranked], models, points, noise, V, verified, poses)
+    # Once more on the inliers alone: an outlier (a vertex of a thin face matched to its
+    # neighbour's junction) no longer pulls the pose.
+    ranked = [
+        (*r[:3], r[3][o[3]], r[4][o[3]], o[0], o[1]) if o[4] else r
+        for r, o in zip(ranked, out, strict=True)
+    ]
+    poses = (np.stack([r[5] for r in ranked]), np.stack([r[6] for r in ranked]))
+    out = _verify_rows(C, [r[2:5] for r in ranked], models, points, noise, V, verified, poses)
     detections = []
     for (_, _, name, mv, iv, _, _), (Rv, tv, error, inliers, accepted, status) in zip(
         ranked, out, strict=True
     ):
         distinct = _distinct_count(points[iv[inliers]], 2 * vertex_radius)
+        if accepted:
+            R_cam, t_cam = refine_on_edges(
+                K,
+                *to_cam(Rv, tv),
+                models[name],
+                mv[inliers],
+                points[iv[inliers]],
+                ends,
+                min_edge=min_edge,
+            )
+            Rv, tv = Rc.T @ R_cam, Rc.T @ (t_cam - tc)
         held, total, seen = _support(
             K, *to_cam(Rv, tv), models[name], distinct, edist, edge_radius, min_edge
         )
