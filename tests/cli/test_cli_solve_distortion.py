@@ -7,7 +7,6 @@ import json
 import cv2
 import numpy as np
 import pytest
-from helpers import chessboard_corners
 
 import jaxpose as jp
 from jaxpose.cli._main import main
@@ -121,44 +120,3 @@ def test_without_the_refinement_the_pose_differs(tmp_path, capsys, problem):
         _image_rms(problem["model"], problem["image"], cam["rvec"], cam["tvec"]), rel=1e-9
     )
     assert np.abs(np.asarray(cam["tvec"]) - tv).max() > 1e-5
-
-
-def test_chessboard_with_opencv_calibration_file_is_opencv_optimum(tmp_path, capsys):
-    """On OpenCV's photograph and calibration file (k1 = -0.27): OpenCV's optimum."""
-    from pathlib import Path
-
-    data = Path(__file__).parents[1] / "data" / "chessboard"
-    found = chessboard_corners(data / "left12.jpg")
-    assert found is not None
-    board, corners = found
-    np.savetxt(tmp_path / "board.csv", board, delimiter=",")
-    np.savetxt(tmp_path / "corners.csv", corners, delimiter=",")
-    out_path = tmp_path / "pose.json"
-    rc, _, err = _run(
-        capsys,
-        "solve",
-        "--model",
-        tmp_path / "board.csv",
-        "--image",
-        tmp_path / "corners.csv",
-        "--camera",
-        data / "left_intrinsics.yml",
-        "--method",
-        "linear",
-        "--out",
-        out_path,
-    )
-    assert rc == 0, err
-    res = json.loads(out_path.read_text())
-    fs = cv2.FileStorage(str(data / "left_intrinsics.yml"), cv2.FILE_STORAGE_READ)
-    Kc, dist = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat()
-    fs.release()
-    ok, rv, tv = cv2.solvePnP(board, corners, Kc, dist, flags=cv2.SOLVEPNP_SQPNP)
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 500, 1e-15)
-    rv, tv = cv2.solvePnPRefineLM(board, corners, Kc, dist, rv, tv, criteria=crit)
-    cam = res["camera_frame"]
-    np.testing.assert_allclose(cam["rvec"], rv.ravel(), atol=1e-9)
-    np.testing.assert_allclose(cam["tvec"], tv.ravel(), atol=1e-9)
-    p, _ = cv2.projectPoints(board, rv, tv, Kc, dist)
-    rms = float(np.sqrt(np.mean(np.sum((p.reshape(-1, 2) - corners) ** 2, axis=1))))
-    assert res["image_rms_px"] == pytest.approx(rms, rel=1e-9)
