@@ -2,7 +2,8 @@
 
 **Rendered scenes** (`jaxpose.viz.rendered_scene`): the database holds the cross prism
 and two distractors (`l_block`, `hexagonal_prism`); each scene shows the cross prism at
-a random pose, 0-30% of its silhouette occluded, over a textured background with
+a random pose (uniform rotation, 150-350 px across, wholly in frame, not edge-on), 0-30%
+of its silhouette occluded, over a textured background with
 clutter segments, rectangles and polylines, blurred and noisy. For each scene the
 image front end (`jaxpose.features.image_primitives`) and `jaxpose.apps.detect`, timed
 together. A scene is right when the best detection is the cross prism and the model's
