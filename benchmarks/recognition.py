@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 import jaxpose as jp
-from jaxpose.apps._detect_verify import project_vertices
+from jaxpose.apps._detect_edges import project_vertices
 
 from ._harness import RESULTS, rich_console, verdict, write_json
 

@@ -40,13 +40,8 @@ import numpy as np
 
 from ..features._segments import oriented_edge_distance
 from ..geometry._validate import as_camera
-from ._detect_verify import (
-    Detection,
-    Settings,
-    project_vertices,
-    refine_and_verify,
-    vertex_directions,
-)
+from ._detect_edges import project_vertices
+from ._detect_verify import Detection, Settings, refine_and_verify, vertex_directions
 from ._hypotheses import ModelTables, score_paths
 from ._polyhedron import Polyhedron, polygon_normals
 

@@ -20,19 +20,18 @@ import numpy as np
 
 from ._polyhedron import Polyhedron, seen_vertices
 
-__all__ = ["refine_on_edges"]
+__all__ = ["project_vertices", "refine_on_edges"]
 
 
 def _rotation(w: np.ndarray) -> np.ndarray:
-    theta = float(np.linalg.norm(w))
-    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if theta < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + math.sin(theta) / theta * k + (1 - math.cos(theta)) / theta**2 * k @ k
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(w, np.float64).reshape(3, 1))[0]
 
 
-def _project(K, R, t, x) -> np.ndarray:
-    uv = (x @ R.T + t) @ K.T
+def project_vertices(K, R, t, x) -> np.ndarray:
+    """Pixels `(n, 2)` of points `x` `(n, 3)` at camera-frame pose `(R, t)` through `K`."""
+    uv = (np.asarray(x) @ R.T + t) @ K.T
     return uv[:, :2] / np.where(np.abs(uv[:, 2:]) > 1e-12, uv[:, 2:], 1e-12)
 
 
@@ -91,7 +90,7 @@ def refine_on_edges(
     pixels = np.asarray(pixels, np.float64).reshape(-1, 2)
     for r in range(rounds):
         seen = set(seen_vertices(model, R, t, np.zeros(3)).tolist())
-        uv = _project(K, R, t, verts)
+        uv = project_vertices(K, R, t, verts)
         edges = [
             (int(a), int(b))
             for a, b in np.asarray(model.edges)
@@ -105,13 +104,13 @@ def refine_on_edges(
 
         def residuals(p, R0=R, t0=t, which=which, points=points):
             Rp, tp = _rotation(p[:3]) @ R0, t0 + p[3:]
-            a = _project(K, Rp, tp, verts[which[:, 0]])
-            b = _project(K, Rp, tp, verts[which[:, 1]])
+            a = project_vertices(K, Rp, tp, verts[which[:, 0]])
+            b = project_vertices(K, Rp, tp, verts[which[:, 1]])
             axis = b - a
             axis = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
             normal = np.column_stack([-axis[:, 1], axis[:, 0]])
             line = np.sum((points - a) * normal, axis=1)
-            corner = (_project(K, Rp, tp, verts[vertices]) - pixels).ravel()
+            corner = (project_vertices(K, Rp, tp, verts[vertices]) - pixels).ravel()
             return np.concatenate([line, corner])
 
         p = np.zeros(6)

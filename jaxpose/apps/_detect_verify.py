@@ -27,11 +27,11 @@ from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
 from ..solvers._kernel_linear import linear_kernel, matches_from_observations
 from ..solvers._residuals import pixel_residuals
 from ..solvers._status import Status
-from ._detect_edges import refine_on_edges
+from ._detect_edges import project_vertices, refine_on_edges
 from ._polyhedron import Polyhedron, seen_vertices
 from ._recognition import acceptance_thresholds
 
-__all__ = ["Detection", "Settings", "project_vertices", "refine_and_verify", "vertex_directions"]
+__all__ = ["Detection", "Settings", "refine_and_verify", "vertex_directions"]
 
 VERIFIED = 8  # best refined candidates judged (one compiled call)
 
@@ -184,23 +184,23 @@ def _support(K, R, t, model: Polyhedron, matched: int, edist, edge_radius, min_e
 # --------------------------------------------------------------------------- the entry point
 
 
-def project_vertices(K, R, t, vertices) -> np.ndarray:
-    cam = np.asarray(vertices) @ R.T + t
-    uv = cam @ K.T
-    return uv[:, :2] / np.where(np.abs(uv[:, 2:]) > 1e-12, uv[:, 2:], 1e-12)
-
-
-@jax.jit
-def _settle(C, model, image, mask, R, t):
+def _linear(C, model, image, mask, R, t):
     """Five steps of the linear method (Gauss-Newton on Eq. 8) from every pose `(H, 3, 3)`,
-    `(H, 3)` over its matches `(H, V, ...)` (model to world; `C` the world camera)."""
+    `(H, 3)` over its matches `(H, V, ...)` (model to world; `C` the world camera):
+    `(obs, R, t, error, status)`."""
     obs = jax.vmap(observations, in_axes=(None, 0, 0, 0))(C, model, image, mask)
     m = matches_from_observations(obs)
     R0 = Mat3(*(R[:, i, j] for i in range(3) for j in range(3)))
     t0 = Vec3(*(t[:, i] for i in range(3)))
     R1, t1, error, _, status = linear_kernel(R0, t0, m, iterations=5)
+    return obs, mat_to_array(R1), vec_to_array(t1), error, status
+
+
+@jax.jit
+def _settle(C, model, image, mask, R, t):
+    """`_linear`'s poses, the starting ones kept where it did not converge."""
+    _, R1, t1, _, status = _linear(C, model, image, mask, R, t)
     good = status == Status.OK
-    R1, t1 = mat_to_array(R1), vec_to_array(t1)
     return jnp.where(good[:, None, None], R1, R), jnp.where(good[:, None], t1, t)
 
 
@@ -338,12 +338,7 @@ def _judge(C, model, image, mask, R, t, noise, confidence: float, min_consensus:
     chi-square bounds of `acceptance_thresholds`) at the poses `(H, 3, 3)`, `(H, 3)`
     that the linear method reaches from the refined ones: `(R, t, error, inliers,
     accepted, status)`, batched."""
-    obs = jax.vmap(observations, in_axes=(None, 0, 0, 0))(C, model, image, mask)
-    m = matches_from_observations(obs)
-    R0 = Mat3(*(R[:, i, j] for i in range(3) for j in range(3)))
-    t0 = Vec3(*(t[:, i] for i in range(3)))
-    R1, t1, error, _, status = linear_kernel(R0, t0, m, iterations=5)
-    R1, t1 = mat_to_array(R1), vec_to_array(t1)
+    obs, R1, t1, error, status = _linear(C, model, image, mask, R, t)
 
     def rule(obs, R, t, error, status):
         count = jnp.sum(obs.mask)

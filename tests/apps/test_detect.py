@@ -12,7 +12,7 @@ import pytest
 import jaxpose as jp
 from jaxpose.apps._bench import random_rotation
 from jaxpose.apps._detect import _paths, _tables
-from jaxpose.apps._detect_verify import project_vertices
+from jaxpose.apps._detect_edges import project_vertices
 from jaxpose.apps._hypotheses import score_paths
 from jaxpose.apps._polyhedron import seen_vertices
 from jaxpose.features import Primitives, Segments, Vertices, edge_distance
