@@ -19,9 +19,9 @@ matches; `tests/data/README.md`), compared as for the scenes (the untextured box
 symmetric); `cv2.solvePnPRansac` on the same keypoint matches beside it.
 
 Writes `benchmarks/results/recognition.json` (`recognition_quick.json` with `--quick`:
-40 scenes and 10 empty ones instead of 200 and 50).
+40 scenes and 10 empty ones instead of 200 and 50; `--out PATH` writes there instead).
 
-    python -m benchmarks.recognition [--quick]
+    python -m benchmarks.recognition [--quick] [--out PATH]
 """
 
 from __future__ import annotations
@@ -136,12 +136,13 @@ def box_photograph() -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="40 + 10 scenes")
+    parser.add_argument("--out", type=Path, help="write the JSON here instead")
     args = parser.parse_args(argv)
     res = scenes(*((40, 10) if args.quick else (200, 50)))
     res["box"] = box_photograph()
     res["quick"] = args.quick
     name = "recognition_quick.json" if args.quick else "recognition.json"
-    out = write_json(RESULTS / name, res)
+    out = write_json(args.out or RESULTS / name, res)
     console = rich_console(100)
     box = res["box"]
     console.print(
