@@ -11,16 +11,20 @@ largest `|entry|`, the least component of a normal) a chain of `jnp.where`
 (`first_extreme`), and the four candidates arrays with a trailing axis of 4.
 
 **XLA:CPU.** The solver is cut into stages (`_prepare`, `_rotated_cubic`, ...,
-`_newton` three times, `_validity`, `_pose`), each computed by a few loops that write
-its outputs together (`together`): left to itself XLA writes each output with a loop of
-its own that recomputes its whole cone (ten times the operations, and chains of selects
-that compiled to code running for minutes). `arccos`, `cos` and `cbrt`, library calls
-(17, 7 and 23 ns per element here, repeated for every use inside a fused loop), become
-arithmetic (`_trisect`, `_cbrt`). Two shortcuts keep the values: the indefiniteness
-ratios are compared cross-multiplied, and the plane bases are not normalised (the null
-directions and the discriminant's sign do not depend on their scales). Rounding only
-differs: `t = mean(P_i) - R mean(m_i)`, and no implicit-function step (an identity in
-value). Batches run in passes of at most `CHUNK` triplets (cache-resident stages).
+`_polish` (the three Newton steps and the tolerances), `_pose`), each computed by a few
+loops that write its outputs together (`together`): left to itself XLA writes each
+output with a loop of its own that recomputes its whole cone (ten times the operations,
+and chains of selects that compiled to code running for minutes). `arccos`, `cos` and
+`cbrt` become arithmetic (`_kernel_p3p_cubic`). Shortcuts that keep the values: the
+indefiniteness ratios are compared cross-multiplied, the plane bases are not normalised
+(the null directions and the discriminant's sign do not depend on their scales), each
+residual of the polish is computed once, and `isfinite` of a sum of products with `0`
+tests twelve values at once. Rounding only differs: `t = mean(P_i) - R mean(m_i)`, no
+implicit-function step (an identity in value), and in `three_point_batch` the bearings
+`adj(M) [u v 1]` are normalised once (here) rather than twice. `three_point_batch` lays
+out its outputs in the loops that apply the masks, after one loop per triplet for the
+degeneracy tests and the status. Batches run in passes of at most `CHUNK` triplets
+(cache-resident stages).
 
 No derivative flows through this kernel: its inputs pass through
 `jax.lax.stop_gradient`, and the pose solvers that use it attach the implicit
@@ -36,13 +40,14 @@ derivative of the poses afterwards (as `_p3p` does with its Newton step on the d
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ..geometry._camera import backproject, normalize_camera
+from ..geometry._camera import camera_centre, normalize_camera
 from ..geometry._numerics import by_precision, safe_div, safe_sqrt
 from ._components import (
     Mat3,
@@ -66,6 +71,7 @@ from ._components import (
     vec_to_array,
 )
 from ._kernel_linear import in_chunks
+from ._kernel_p3p_cubic import cubic_polish, cubic_start
 from ._p3p import _DOUBLE_ROOT_ULPS, _NEAR, _NEAR_RESIDUAL, ThreePointResult
 from ._status import Status
 
@@ -106,86 +112,6 @@ def _unit(v: Vec3) -> Vec3:
 def _staged(f, *args, group: int = 8):
     """`f(*args)`, its outputs computed in shared loops and written once (`together`)."""
     return together(f(*args), group)
-
-
-# --------------------------------------------------------------------------- cubic
-
-
-def _cbrt(v):
-    """Real cube root with arithmetic only (no library call): a start from the exponent
-    bits (within ~6%), then three Halley steps (cubic convergence). Magnitudes outside
-    `[2^-3k, 2^3k]` are scaled into it first, away from overflow and subnormals."""
-    dtype = v.dtype
-    a = jnp.abs(v)
-    f64 = jnp.finfo(dtype).bits == 64
-    itype, bias, shift, k = (jnp.int64, 1023, 52, 200) if f64 else (jnp.int32, 127, 23, 40)
-    tiny, big = a < 2.0 ** (-3 * k), a > 2.0 ** (3 * k)
-    s = jnp.where(tiny, a * 2.0 ** (3 * k), jnp.where(big, a * 2.0 ** (-3 * k), a))
-    bits = jax.lax.bitcast_convert_type(s, itype)
-    y = jax.lax.bitcast_convert_type(bits // 3 + ((2 * bias) << shift) // 3, dtype)
-    for _ in range(3):
-        y3 = y * y * y
-        y = y * ((y3 + 2 * s) / (2 * y3 + s))
-    y = jnp.where(tiny, y * 2.0**-k, jnp.where(big, y * 2.0**k, y))
-    y = jnp.where(s == 0, 0, jnp.where(a == jnp.inf, a, y))  # 0 (subnormals too), inf
-    return jnp.where(v < 0, -y, y)
-
-
-def _trisect(t):
-    """`cos(arccos(t) / 3)` for `t` in `[-1, 1]`, with arithmetic only.
-
-    `c = 1/2 + r e`, `r = sqrt(1 + t)`: the Chebyshev equation `4 c^3 - 3 c = t` becomes
-    `4 r e^3 + 6 e^2 = 1`, increasing and convex in `e` over `[0.35, 0.41]` for every
-    `r` in `[0, sqrt 2]` (no double root at `t = -1` any more): four Newton steps from
-    the chord reach the root to rounding. Returns `c` and `sin(arccos(t) / 3) >= 0`,
-    from `1 - c = (1 - t) / (2 c + 1)^2`, free of cancellation at `t = 1`.
-    """
-    r = jnp.sqrt(1 + t)
-    e0, e2 = 1 / jnp.sqrt(6.0), 0.5 / jnp.sqrt(2.0)
-    e = e0 + (e2 - e0) / jnp.sqrt(2.0) * r
-    for _ in range(4):
-        e2_ = e * e
-        e = e - (4 * r * e2_ * e + 6 * e2_ - 1) / (12 * r * e2_ + 12 * e)
-    c = 0.5 + r * e
-    k = 2 * c + 1
-    s = jnp.sqrt((1 - t) * (1 + c)) / k
-    return c, s
-
-
-def _cubic_start(a, b, c):
-    """Initial real roots of `x^3 + a x^2 + b x + c` (the closed form of
-    `_p3p._cubic_roots`, its trigonometric branch through `_trisect`, Cardano's through
-    `_cbrt`), three arrays."""
-    p = b - a * a / 3
-    q = 2 * a**3 / 27 - a * b / 3 + c
-    disc = (q / 2) ** 2 + (p / 3) ** 3
-    three = disc < 0
-    m = safe_sqrt(-p / 3)
-    arg = jnp.clip(jnp.where(three, safe_div(-q / 2, m**3), 0), -1, 1)
-    co, si = _trisect(arg)
-    half = jnp.sqrt(3.0) / 2
-    # 2 m cos(phi - 2 pi k / 3), phi = arccos(arg) / 3, k = 0, 1, 2
-    trig = [2 * m * co, 2 * m * (-0.5 * co + half * si), 2 * m * (-0.5 * co - half * si)]
-    s = safe_sqrt(disc)
-    u = _cbrt(-q / 2 + jnp.where(q <= 0, s, -s))
-    one = u - safe_div(p, 3 * u)
-    return [jnp.where(three, x, one) - a / 3 for x in trig]
-
-
-def _cubic_polish(roots, a, b, c):
-    """Two guarded Newton steps on each root (as `_p3p._cubic_roots`)."""
-
-    def f(x):
-        return ((x + a) * x + b) * x + c
-
-    out = []
-    for x in roots:
-        for _ in range(2):
-            fx = f(x)
-            xn = x - safe_div(fx, (3 * x + 2 * a) * x + b)
-            x = jnp.where(jnp.abs(f(xn)) < jnp.abs(fx), xn, x)
-        out.append(x)
-    return out
 
 
 # --------------------------------------------------------------------------- depths
@@ -352,11 +278,11 @@ def _maxabs(f):
     return jnp.maximum(jnp.maximum(jnp.abs(f[0]), jnp.abs(f[1])), jnp.abs(f[2]))
 
 
-def _newton(L: Vec3, a, c) -> Vec3:
+def _newton(L: Vec3, f, err, a, c):
     """One guarded Newton step of the polish (`_p3p._depths`) on the depths `L`
-    `(..., 4)`: kept where it lowers the largest |residual|."""
-    a, c = tuple(_each(v) for v in a), tuple(_each(v) for v in c)
-    (c12, c13, c23), f = c, _residual(L, a, c)
+    `(..., 4)` of residuals `f` (the largest |residual| `err`): kept where it lowers
+    `err`. Returns the depths, their residuals and `err`."""
+    c12, c13, c23 = c
     d01, d02, d12 = L.x - L.y, L.x - L.z, L.y - L.z
     # J = [[p, q, 0], [r, 0, s], [0, u, w]]; the columns of adj(J)
     p, q = 2 * d01 + c12 * L.y, -2 * d01 + c12 * L.x
@@ -368,8 +294,30 @@ def _newton(L: Vec3, a, c) -> Vec3:
     inv = safe_div(1, p * k0.x + q * k0.y)
     step = Vec3(*((k0[i] * f[0] + k1[i] * f[1] + k2[i] * f[2]) * inv for i in range(3)))
     Ln = sub(L, step)
-    better = _maxabs(_residual(Ln, a, c)) < _maxabs(f)
-    return Vec3(*(jnp.where(better, x, y) for x, y in zip(Ln, L, strict=True)))
+    fn = _residual(Ln, a, c)
+    err_n = _maxabs(fn)
+    better = err_n < err
+    L = Vec3(*(jnp.where(better, x, y) for x, y in zip(Ln, L, strict=True)))
+    f = tuple(jnp.where(better, x, y) for x, y in zip(fn, f, strict=True))
+    return L, f, jnp.where(better, err_n, err)
+
+
+def _polish(L: Vec3, a, c, real, near, steps: int = 3):
+    """The polish of `_p3p._depths` (`steps` guarded Newton steps) on the depths `L`
+    `(..., 4)`, then its double-root rule and tolerances: the depths and
+    `(exact, near, positive)` `(..., 4)`; each residual computed once."""
+    dtype = L.x.dtype
+    a, c = tuple(_each(v) for v in a), tuple(_each(v) for v in c)
+    f = _residual(L, a, c)
+    err = _maxabs(f)
+    for _ in range(steps):
+        L, f, err = _newton(L, f, err, a, c)
+    tol = by_precision(dtype, f64=1e-6, f32=1e-3)
+    ulps = _DOUBLE_ROOT_ULPS * jnp.finfo(dtype).eps
+    biggest = jnp.maximum(jnp.maximum(L.x * L.x, L.y * L.y), L.z * L.z)
+    exact = (real | (near & (err <= ulps * biggest))) & (err < tol)
+    near = (near | real) & ~exact & (err < _NEAR_RESIDUAL)
+    return L, (exact, near, (L.x > 0) & (L.y > 0) & (L.z > 0))
 
 
 # --------------------------------------------------------------------------- poses
@@ -383,10 +331,9 @@ def _frame(e1: Vec3, e2: Vec3):
 
 
 def _prepare(bearings: Triple, x: Triple):
-    """The bearings' reciprocal norms `r_i` (unit bearings `y_i = r_i f_i`); the
-    normalised squared edges `a_ij`, the cosines `b_ij = y_i . y_j`, the
-    `c_ij = |y_i - y_j|^2`; the square root of the edges' sum; the model's frame and
-    centroid."""
+    """The unit bearings `y_i = f_i / |f_i|` (`0` at `f_i = 0`); the normalised squared
+    edges `a_ij`, the cosines `b_ij = y_i . y_j`, the `c_ij = |y_i - y_j|^2`; the square
+    root of the edges' sum; the model's frame and centroid."""
     r = tuple(_rsqrt(norm_sq(f)) for f in bearings)
     y = tuple(scale(f, ri) for f, ri in zip(bearings, r, strict=True))
     d12, d13, d23 = sub(x[0], x[1]), sub(x[0], x[2]), sub(x[1], x[2])
@@ -398,29 +345,15 @@ def _prepare(bearings: Triple, x: Triple):
     e12, e13, e23 = sub(y[0], y[1]), sub(y[0], y[2]), sub(y[1], y[2])
     c = (dot(e12, e12), dot(e13, e13), dot(e23, e23))
     centroid = Vec3(*((x[0][i] + x[1][i] + x[2][i]) / 3 for i in range(3)))
-    return r, a, b, c, safe_sqrt(total), _frame(d12, d13), centroid
+    return y, a, b, c, safe_sqrt(total), _frame(d12, d13), centroid
 
 
-def _validity(L: Vec3, a, c, real, near):
-    """The double-root rule and tolerances of `_p3p._depths` on the polished depths:
-    `(exact, near, positive)` `(..., 4)`."""
-    dtype = L.x.dtype
-    a, c = tuple(_each(v) for v in a), tuple(_each(v) for v in c)
-    err = _maxabs(_residual(L, a, c))
-    tol = by_precision(dtype, f64=1e-6, f32=1e-3)
-    ulps = _DOUBLE_ROOT_ULPS * jnp.finfo(dtype).eps
-    biggest = jnp.maximum(jnp.maximum(L.x * L.x, L.y * L.y), L.z * L.z)
-    exact = (real | (near & (err <= ulps * biggest))) & (err < tol)
-    near = (near | real) & ~exact & (err < _NEAR_RESIDUAL)
-    return exact, near, (L.x > 0) & (L.y > 0) & (L.z > 0)
-
-
-def _pose(L: Vec3, bearings: Triple, r, root, Fx, centroid: Vec3):
+def _pose(L: Vec3, y: Triple, root, Fx, centroid: Vec3):
     """The pose of each candidate (depths `L` `(..., 4)`, scaled by `root`): with `Fp`
     the frame on the camera-side triangle `P_i = l_i y_i`, `R = Fp Fx^T` and
     `t = mean(P_i) - R mean(x_i)`; and whether both are finite."""
     L = scale(L, _each(root))
-    y = tuple(_lift_each(scale(f, ri)) for f, ri in zip(bearings, r, strict=True))
+    y = tuple(_lift_each(yi) for yi in y)
     P = tuple(scale(yi, li) for yi, li in zip(y, L, strict=True))
     Fp = _frame(sub(P[0], P[1]), sub(P[0], P[2]))
     Fx = tuple(_lift_each(e) for e in Fx)
@@ -441,10 +374,9 @@ def _pose(L: Vec3, bearings: Triple, r, root, Fx, centroid: Vec3):
             for i in range(3)
         )
     )
-    finite = jnp.isfinite(R[0])
-    for v in (*R[1:], *t):
-        finite = finite & jnp.isfinite(v)
-    return R, t, finite
+    # all finite iff the sum of their products with 0 (+-0 or NaN) is
+    zeros = [v * 0 for v in (*R, *t)]
+    return R, t, jnp.isfinite(functools.reduce(jnp.add, zeros))
 
 
 def p3p_components(bearings: Triple, points: Triple) -> P3PCandidates:
@@ -461,18 +393,16 @@ def p3p_components(bearings: Triple, points: Triple) -> P3PCandidates:
     thousand triplets, call it on blocks (`in_chunks`, as `p3p_batch` does).
     """
     bearings, points = jax.tree.map(jax.lax.stop_gradient, (bearings, points))
-    r, a, b, c, root, Fx, centroid = _staged(_prepare, bearings, points)
+    y, a, b, c, root, Fx, centroid = _staged(_prepare, bearings, points)
     cb, sb, ca, cb_, cc = _staged(_rotated_cubic, a, b)
-    roots = _staged(_cubic_start, ca, cb_, cc)
-    roots = _staged(_cubic_polish, roots, ca, cb_, cc)
+    roots = _staged(cubic_start, ca, cb_, cc)
+    roots = _staged(cubic_polish, roots, ca, cb_, cc)
     alpha, beta = _staged(_most_indefinite, roots, cb, sb, a, b)
     normals, E, indefinite = _staged(_planes, alpha, beta, a, b)
     bases = _staged(_plane_bases, normals, E)
     lam, real, near = _staged(_on_planes, bases, indefinite, b)
-    for _ in range(3):
-        lam = _staged(_newton, lam, a, c)
-    exact, near, positive = _staged(_validity, lam, a, c, real, near)
-    R, t, finite = _staged(_pose, lam, bearings, r, root, Fx, centroid, group=0)
+    lam, (exact, near, positive) = _staged(_polish, lam, a, c, real, near)
+    R, t, finite = _staged(_pose, lam, y, root, Fx, centroid, group=0)
     return P3PCandidates(R, t, exact & finite, near & finite, positive)
 
 
@@ -554,37 +484,68 @@ def three_point_batch(
     camera = sg((normalize_camera if shared else jax.vmap(normalize_camera))(camera))
     dtype = camera.dtype
     model, image = sg(jnp.asarray(model, dtype)), sg(jnp.asarray(image, dtype))
+    centre = camera_centre(camera) if shared else jax.vmap(camera_centre)(camera)
 
-    def solve(model, image, camera=camera):
-        if shared:
-            centre, bearings = backproject(camera, image.reshape(-1, 2))
-            bearings = bearings.reshape(image.shape[:-1] + (3,))
-        else:
-            centre, bearings = jax.vmap(backproject)(camera, image)
+    def solve(model, image, camera=camera, centre=centre):
         x = _triple(model)
-        finite = jnp.all(jnp.isfinite(model), axis=(-2, -1)) & jnp.all(
-            jnp.isfinite(image), axis=(-2, -1)
-        )
-        finite = finite & jnp.all(jnp.isfinite(camera), axis=(-2, -1))
-        c = p3p_components(_triple(bearings), x)
-        centre = jnp.moveaxis(centre, -1, 0)
-        t = Vec3(*(a + (o if shared else _each(o)) for a, o in zip(c.t, centre, strict=True)))
         u, v = jnp.moveaxis(image, (-1, -2), (0, 1))  # (3, ...) each
-        degenerate_image, degenerate_model = degeneracy(
-            (u[0], u[1], u[2]), (v[0], v[1], v[2]), x, min_area, collinear_tol
-        )
-        found = c.real | (c.near & approximate)
-        ok = finite & ~degenerate_image & ~degenerate_model
-        valid = found & c.positive & ok[..., None]
-        problems = (~finite, degenerate_image, degenerate_model)
-        problems += (~jnp.any(found, axis=-1), ~jnp.any(valid, axis=-1))
-        codes = (Status.NOT_FINITE, Status.DEGENERATE_IMAGE, Status.DEGENERATE_MODEL)
-        codes += (Status.NO_SOLUTION, Status.BEHIND_CAMERA)
-        status = jnp.select(problems, codes, Status.OK).astype(jnp.int32)
-        R, t = _placeholders(c._replace(t=t), valid)
-        return ThreePointResult(R, t, valid, status)
+        u, v = (u[0], u[1], u[2]), (v[0], v[1], v[2])
+        c = p3p_components(_bearings(camera, u, v), x)
+        kw = dict(min_area=min_area, collinear_tol=collinear_tol, approximate=approximate)
+        return _finish(c, x, u, v, camera, centre, **kw)
 
     size = _pass_size(model.shape[0], chunk)
     if shared:
         return in_chunks(solve, model, image, size=size)
-    return in_chunks(lambda m, i, C: solve(m, i, C), model, image, camera, size=size)
+    return in_chunks(solve, model, image, camera, centre, size=size)
+
+
+def _bearings(camera, u, v) -> Triple:
+    """`adj(M) [u_i v_i 1]^T` for the three pixels `(u_i, v_i)`: `backproject`'s
+    directions in component form, before its normalising (`p3p_components` normalises).
+    `camera` normalised, `(3, 4)` or `(..., 3, 4)`."""
+    A = adjugate(Mat3(*(camera[..., i, j] for i in range(3) for j in range(3))))
+
+    def ray(ui, vi):
+        return Vec3(
+            A.xx * ui + A.xy * vi + A.xz,
+            A.yx * ui + A.yy * vi + A.yz,
+            A.zx * ui + A.zy * vi + A.zz,
+        )
+
+    return ray(u[0], v[0]), ray(u[1], v[1]), ray(u[2], v[2])
+
+
+def _finish(
+    c: P3PCandidates, x: Triple, u, v, camera, centre, *, min_area, collinear_tol, approximate
+):
+    """`three_point`'s tests, statuses, masks and placeholders on the candidates: the
+    tests and the status of each triplet computed in one loop (`together`, the slots'
+    flags read there), the masks and the poses' placeholders in the loops that lay out
+    the outputs. `centre` `(3,)` or `(..., 3)`."""
+    found = c.real | (c.near & approximate)
+    slots = range(found.shape[-1])
+
+    def per_triplet():
+        finite = jnp.all(jnp.isfinite(camera), axis=(-2, -1))
+        for w in (*x[0], *x[1], *x[2], *u, *v):
+            finite = finite & jnp.isfinite(w)
+        degenerate_image, degenerate_model = degeneracy(u, v, x, min_area, collinear_tol)
+        ok = finite & ~degenerate_image & ~degenerate_model
+        any_found = functools.reduce(jnp.logical_or, (found[..., k] for k in slots))
+        any_valid = functools.reduce(
+            jnp.logical_or, (found[..., k] & c.positive[..., k] for k in slots)
+        )
+        status = jnp.where(any_valid, Status.OK, Status.BEHIND_CAMERA)
+        status = jnp.where(any_found, status, Status.NO_SOLUTION)
+        status = jnp.where(degenerate_model, Status.DEGENERATE_MODEL, status)
+        status = jnp.where(degenerate_image, Status.DEGENERATE_IMAGE, status)
+        status = jnp.where(finite, status, Status.NOT_FINITE)
+        return ok, status.astype(jnp.int32)
+
+    ok, status = together(per_triplet(), 0)
+    valid = found & c.positive & ok[..., None]
+    o = jnp.moveaxis(centre, -1, 0)  # (3,) shared, or (3, ...)
+    t = Vec3(*(a + (oi if oi.ndim == 0 else _each(oi)) for a, oi in zip(c.t, o, strict=True)))
+    R, t = _placeholders(c._replace(t=t), valid)
+    return ThreePointResult(R, t, valid, status)

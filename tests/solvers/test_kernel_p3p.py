@@ -316,6 +316,34 @@ def test_three_point_batch_equals_vmapped_three_point():
     _assert_same(*(jax.tree.map(np.asarray, r) for r in (ref1, ker1)))
 
 
+def test_three_point_batch_in_passes():
+    """Passes of a few triplets (the last one padded) give the one-pass results, for one
+    camera and for one camera per triplet (its centre travels with the passes)."""
+    rng = np.random.default_rng(12)
+    scenes = [_scene(rng, s) for s in [1.0, -2.0, 0.5] * 10]
+    C, m, uv, _, _ = (np.stack(x) for x in zip(*scenes, strict=True))
+    for cams in (C, C[0]):
+        one = jax.tree.map(np.asarray, _tp_ker(cams, m, uv, chunk=0))
+        passes = jax.tree.map(np.asarray, _tp_ker(cams, m, uv, chunk=7))
+        for a, b in zip(one, passes, strict=True):
+            assert np.array_equal(a, b)
+        assert (one.status == Status.OK).mean() > 0.5
+
+
+def test_non_finite_poses_are_flagged():
+    """Models far too large or small for the squared edges: every slot flagged `real`
+    holds a finite pose, as the reference's flags say."""
+    data = instances(np.random.default_rng(13), 24)
+    f, m = data["f"], data["m"].copy()
+    m[:8] *= 1e160  # squared edges overflow
+    m[8:16] *= 1e-170  # and underflow
+    ref, ker = _both(f, m)
+    assert np.array_equal(ref[2], ker[2]) and np.array_equal(ref[3], ker[3])
+    flagged = ker[2] | ker[3]
+    assert np.isfinite(ker[0][flagged]).all() and np.isfinite(ker[1][flagged]).all()
+    assert flagged[16:].any()
+
+
 def test_three_point_batch_approximate_and_thresholds():
     """`approximate=True` keeps the near-real roots of the noisy double-root scenes, as
     the reference does; the thresholds are passed through."""
