@@ -224,15 +224,16 @@ def solve_pnp(
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     K = np.asarray(K, np.float64)
     with jax.enable_x64(True):
-        # (one transfer each way: no conversion program to compile on a first call)
-        packed = jax.device_put(_pack(K, obj, img, mask))
+        # (numpy in: one transfer each way, no conversion program to compile on a first
+        # call, and no separate `device_put` call)
+        packed = _pack(K, obj, img, mask)
         out = np.array(program(_solve_opencv, first)(packed))
         if then is not None and not out[0]:
             out = np.array(program(_solve_opencv, then)(packed))
         if dist is not None and out[0] and options.method != "three_point":
             # the pose that minimises the error in the image, as OpenCV's
             packed = _pack_refine(K, dist, out[1:4], out[4:7], obj, raw, mask)
-            out[1:] = np.asarray(program(_refine_opencv, REFINE_STEPS)(jax.device_put(packed)))
+            out[1:] = np.asarray(program(_refine_opencv, REFINE_STEPS)(packed))
     return bool(out[0]), out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy()
 
 

@@ -17,6 +17,7 @@ its annotations, which `typing.no_type_check` itself would hide from them.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -123,10 +124,19 @@ def as_point_batch(x: object, name: str, dim: int, *, min_count: int = 1) -> np.
     return arr
 
 
+@functools.lru_cache(maxsize=256)
+def _extreme_singular_values(data: bytes) -> tuple[float, float]:
+    """The largest and smallest singular values of the 3x3 float64 matrix `data` (its
+    bytes): a camera checked once, however many calls pass it again."""
+    s = np.linalg.svd(np.frombuffer(data, np.float64).reshape(3, 3), compute_uv=False)
+    return float(s[0]), float(s[-1])
+
+
 def _check_nonsingular(M: np.ndarray, name: str, what: str) -> None:
-    s = np.linalg.svd(np.asarray(M, dtype=np.float64), compute_uv=False)
-    if not s[0] > 0 or s[-1] <= SINGULAR_RTOL * s[0]:
-        cond = np.inf if s[-1] == 0 else s[0] / s[-1]
+    M = np.ascontiguousarray(M, dtype=np.float64)
+    big, small = _extreme_singular_values(M.tobytes())
+    if not big > 0 or small <= SINGULAR_RTOL * big:
+        cond = np.inf if small == 0 else big / small
         raise ValueError(f"{name}: {what} is singular (condition number {cond:.3g})")
 
 
