@@ -16,7 +16,10 @@ pose found from the mesh alone (`jaxpose.apps.recognize` with `box.ply`: the ver
 path) and from the textured ORB model (the keypoint path), against their reference
 pixels (the pose of `cv2.solvePnPRansac` + `cv2.solvePnPRefineLM` on the keypoint
 matches; `tests/data/README.md`), compared as for the scenes (the untextured box is
-symmetric); `cv2.solvePnPRansac` on the same keypoint matches beside it.
+symmetric); `cv2.solvePnPRansac` on the same keypoint matches beside it. Beside them,
+each path against the seven visible corners measured on the photograph itself
+(`corners.csv`, independently of both paths), with the floor of any pose of this mesh:
+its least-squares fit to those corners (`cv2.solvePnP` + `cv2.solvePnPRefineLM`).
 
 Writes `benchmarks/results/recognition.json` (`recognition_quick.json` with `--quick`:
 40 scenes and 10 empty ones instead of 200 and 50; `--out PATH` writes there instead).
@@ -46,6 +49,25 @@ TARGETS = {"right": 0.95, "false": 0, "seconds": 1.0}
 BOX = Path(__file__).resolve().parents[1] / "tests" / "data" / "opencv_pose_box"
 BOX_K = np.array([[1384.484, 0.0, 359.0], [0.0, 1385.235, 240.0], [0.0, 0.0, 1.0]])
 BOX_REFERENCE = (np.array([2.05445, -0.78674, 0.31403]), np.array([-1.0904, 11.6255, 91.0701]))
+
+
+def _corner_errors(uv: np.ndarray) -> dict:
+    """The measured corners against the projected vertices `uv` (each corner to the
+    nearest): `{"rms", "max", "each"}` in px."""
+    corners = np.loadtxt(BOX / "corners.csv", delimiter=",")[:, 1:]
+    e = _vertex_error(corners, uv)
+    return {"rms": float(np.sqrt(np.mean(e**2))), "max": float(e.max()), "each": e.tolist()}
+
+
+def _corner_floor(vertices: np.ndarray) -> dict:
+    """The mesh's own least-squares fit to the measured corners: `_corner_errors` there."""
+    table = np.loadtxt(BOX / "corners.csv", delimiter=",")
+    obj = np.asarray(vertices[table[:, 0].astype(int)], np.float64)
+    img = np.ascontiguousarray(table[:, 1:])
+    _, rvec, tvec = cv2.solvePnP(obj, img, BOX_K, None, flags=cv2.SOLVEPNP_SQPNP)
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, BOX_K, None, rvec, tvec)
+    uv, _ = cv2.projectPoints(vertices, rvec, tvec, BOX_K, None)
+    return _corner_errors(uv.reshape(-1, 2))
 
 
 def _vertex_error(truth: np.ndarray, found: np.ndarray) -> np.ndarray:
@@ -110,13 +132,17 @@ def box_photograph() -> dict:
         d = rec.detections[0]
         uv = project_vertices(BOX_K, d.R, d.t, box.vertices)
         out["vertex_path_px"] = _vertex_error(ref, uv).tolist()
+        out["vertex_path_corners"] = _corner_errors(uv)
     else:
-        out["vertex_path_px"] = None
+        out["vertex_path_px"] = out["vertex_path_corners"] = None
     start = time.perf_counter()
     pose = jp.apps.locate_textured(image, textured, BOX_K)
     out["keypoint_seconds"] = time.perf_counter() - start
     uv, _ = cv2.projectPoints(box.vertices, pose.rvec, pose.tvec, BOX_K, None)
     out["keypoint_path_px"] = _vertex_error(ref, uv.reshape(-1, 2)).tolist() if pose.ok else None
+    out["keypoint_path_corners"] = _corner_errors(uv.reshape(-1, 2)) if pose.ok else None
+    out["reference_corners"] = _corner_errors(ref)
+    out["mesh_fit_corners"] = _corner_floor(box.vertices)
     m = pose.matches
     ok, rvec, tvec, _ = cv2.solvePnPRansac(
         m.object_points, m.image_points, BOX_K, None, reprojectionError=8.0
@@ -153,6 +179,18 @@ def main(argv: list[str] | None = None) -> int:
         f"photograph: vertex path {box['vertex_path_verdict']}, keypoint path "
         f"{box['keypoint_path_verdict']}"
     )
+    fit = box["mesh_fit_corners"]
+    for key, what in (
+        ("vertex_path_corners", "vertex path"),
+        ("keypoint_path_corners", "keypoint path"),
+        ("reference_corners", "reference pose"),
+    ):
+        c = box[key]
+        console.print(
+            f"box corners (measured), {what}: "
+            + ("not found" if c is None else f"RMS {c['rms']:.2f} px, largest {c['max']:.2f} px")
+            + f" (the mesh's own fit: {fit['rms']:.2f} / {fit['max']:.2f})"
+        )
     console.print(f"written: {out}")
     return 0
 

@@ -325,5 +325,18 @@ def recognition(results: Path) -> str:
             f"{box['vertex_path_verdict']} / {box['keypoint_path_verdict']}",
         ),
     ]
+
+    def corners(key: str) -> str:
+        c = box.get(key)
+        return "not found" if c is None else f"{c['rms']:.2f} / {c['max']:.2f}"
+
+    if "mesh_fit_corners" in box:  # results written since the corners were measured
+        rows += [
+            ("box photograph against its measured corners: RMS / largest (px)", ""),
+            ("mesh only", corners("vertex_path_corners")),
+            ("ORB model", corners("keypoint_path_corners")),
+            ("the reference pose", corners("reference_corners")),
+            ("the mesh's own least-squares fit (the floor)", corners("mesh_fit_corners")),
+        ]
     command = "python -m benchmarks.recognition" + (" --quick" if "quick" in name else "")
     return table(("", "jaxpose"), rows, left=2) + "\n\n" + caption(d, name, command=command)

@@ -327,15 +327,33 @@ def detect(
 
 def _distinct(kept, model: Polyhedron, K, count: int, tolerance: float = 8.0):
     """The best `count` poses, skipping any whose vertices project within `tolerance`
-    px (RMS) of a better one's."""
+    px (RMS) of a better one's, or whose picture (the projected vertices and edge
+    midpoints as a set of points) coincides with a better one's within `tolerance / 4`
+    px: the poses that a symmetry of the model maps onto each other draw the same
+    picture, and one slot is enough for them."""
     out: list[tuple[float, np.ndarray, np.ndarray]] = []
     shown: list[np.ndarray] = []
+    verts = np.asarray(model.vertices, np.float64)
+    edges = np.asarray(model.edges)
+    points = np.concatenate([verts, (verts[edges[:, 0]] + verts[edges[:, 1]]) / 2])
+    n = len(verts)
     for s, R, t in kept:
-        uv = project_vertices(K, R, t, model.vertices)
-        if any(np.sqrt(np.mean(np.sum((uv - o) ** 2, axis=1))) < tolerance for o in shown):
+        uv = project_vertices(K, R, t, points)
+        if any(
+            np.sqrt(np.mean(np.sum((uv[:n] - o[:n]) ** 2, axis=1))) < tolerance
+            or _picture_gap(uv, o) < tolerance / 4
+            for o in shown
+        ):
             continue
         out.append((s, R, t))
         shown.append(uv)
         if len(out) == count:
             break
     return out
+
+
+def _picture_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest distance from a point of `a` `(n, 2)` to the nearest point of `b`, or
+    the other way round."""
+    d = np.linalg.norm(a[:, None] - b[None], axis=-1)
+    return float(max(d.min(axis=1).max(), d.min(axis=0).max()))

@@ -2,8 +2,9 @@
 compiled scoring found to verified detections (see `jaxpose.apps._detect`).
 
 Each candidate pose is refined from matches of its seen model vertices to image
-vertices: nearest within a radius, one to one, and only where the image vertex's
-segments leave in the directions of the model vertex's projected edges. Twice, the
+vertices: within a radius, one to one, only where the image vertex's segments leave in
+the directions of the model vertex's projected edges, closest first but a three-way
+junction holding all its predicted edges before any other (`_match`). Twice, the
 linear method (the paper's small-movement Gauss-Newton, `linear_kernel`) over all
 candidates in one compiled call; then the acceptance rule of `verify` (chi-square
 bounds on the Eq. 8 error and on every residual) at the pose the linear method reaches,
@@ -79,21 +80,24 @@ def vertex_directions(primitives, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def _agrees(predicted: np.ndarray, found: np.ndarray, cos_tol: float) -> bool:
-    """Whether an image vertex's segment directions `found` `(3, 2)` hold the predicted
-    edge directions `predicted` `(k, 2)`: at least `min(k, 2)` of them within the
-    tolerance (a junction says which way its edges go; a corner of clutter rarely
+def _hits(predicted: np.ndarray, found: np.ndarray, cos_tol: float) -> int:
+    """How many of the predicted edge directions `predicted` `(k, 2)` an image vertex's
+    segment directions `found` `(3, 2)` hold within the tolerance. A match needs at least
+    `min(k, 2)` (a junction says which way its edges go; a corner of clutter rarely
     agrees with two predicted edges at once)."""
     if len(predicted) == 0:
-        return True
-    hits = np.sum(np.max(predicted @ found.T, axis=1) >= cos_tol)
-    return bool(hits >= min(len(predicted), 2))
+        return 0
+    return int(np.sum(np.max(predicted @ found.T, axis=1) >= cos_tol))
 
 
 def _match(K, R, t, model: Polyhedron, points: np.ndarray, directions, radius: float):
-    """Model vertices seen at camera-frame pose `(R, t)` matched one to one to the
-    nearest image vertices within `radius` px (closest pairs first) whose segments
-    leave in the directions of the vertex's projected edges (`_agrees`, 20 degrees)."""
+    """Model vertices seen at camera-frame pose `(R, t)` matched one to one to image
+    vertices within `radius` px whose segments leave in the directions of the vertex's
+    projected edges (`_hits`, 20 degrees), the closest pairs first. A junction that
+    holds all of three or more predicted edges, nearer this model vertex than any other,
+    is the strongest evidence there is (the printed corners about a rounded one hold two
+    at most; a pose solved through one of them puts the vertex right on it): such pairs
+    come first, and out to `2 * radius` px."""
     seen = seen_vertices(model, R, t, np.zeros(3))
     if len(seen) == 0 or len(points) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -106,24 +110,29 @@ def _match(K, R, t, model: Polyhedron, points: np.ndarray, directions, radius: f
             neighbours[int(a)].append(int(b))
             neighbours[int(b)].append(int(a))
     d = np.linalg.norm(uv[:, None] - points[None], axis=-1)
-    order = np.argsort(d, axis=None)
-    used_m, used_i, pairs = set(), set(), []
     cos_tol = math.cos(math.radians(20.0))
-    for flat in order:
-        m, i = divmod(int(flat), len(points))
-        if d[m, i] > radius:
-            break
-        if m in used_m or i in used_i:
-            continue
+    closest = d.min(axis=0)
+    candidates = []
+    pairs_m, pairs_i = np.nonzero(d <= 2 * radius)
+    for m in np.unique(pairs_m):
         v = int(seen[m])
         predicted = np.array([uv_all[n] - uv_all[v] for n in neighbours[v]]).reshape(-1, 2)
         length = np.linalg.norm(predicted, axis=1)
         predicted = predicted[length >= 3] / length[length >= 3, None]
-        if not _agrees(predicted, directions[i], cos_tol):
+        for i in pairs_i[pairs_m == m]:
+            hits = _hits(predicted, directions[i], cos_tol)
+            full = hits >= max(len(predicted), 3) and d[m, i] <= closest[i]
+            if hits < min(len(predicted), 2) or (d[m, i] > radius and not full):
+                continue
+            candidates.append((not full, float(d[m, i]), int(m), int(i)))
+    candidates.sort()
+    used_m, used_i, pairs = set(), set(), []
+    for _, _, m, i in candidates:
+        if m in used_m or i in used_i:
             continue
         used_m.add(m)
         used_i.add(i)
-        pairs.append((v, i))
+        pairs.append((int(seen[m]), i))
     pairs.sort()
     rows = np.array(pairs, dtype=np.int64).reshape(-1, 2)
     return rows[:, 0], rows[:, 1]

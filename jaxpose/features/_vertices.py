@@ -247,7 +247,11 @@ def vertex_links(
 
     Two vertices `a`, `b` are linked when the segments lying along the straight line
     between them (parallel to it within `angle` degrees, within `distance` px of it over
-    their part between `a` and `b`) cover at least `coverage` of its length.
+    their part between `a` and `b`) cover at least `coverage` of its length. Where three
+    lines meet at a vertex they rarely cross at one point (a rounded corner): the vertex
+    lies off its own segments' lines by up to some `slack` px, and the line to it may
+    stray that much more near it, so the allowance grows to `distance + slack` at the
+    vertex, falling linearly to `distance` at the other end (`slack` at most `distance`).
 
     **Arguments:** `vertices`, `segments`; `coverage` in (0, 1]; `distance` (pixels);
     `angle` (degrees).
@@ -290,7 +294,13 @@ def vertex_links(
     def offset(s):
         return np.where(np.abs(span) > 1e-9, h0 + (h1 - h0) * (s - s0) / safe, h0)
 
-    near = (np.abs(offset(lo)) <= distance) & (np.abs(offset(hi)) <= distance)
+    slack = _slack(vertices, segments, distance)
+
+    def allowed(s):
+        w = s / L[:, None]
+        return distance + slack[a][:, None] * (1 - w) + slack[b][:, None] * w
+
+    near = (np.abs(offset(lo)) <= allowed(lo)) & (np.abs(offset(hi)) <= allowed(hi))
     use = parallel & near & (hi > lo)
     for p in np.flatnonzero(np.any(use, axis=1)):
         k = np.flatnonzero(use[p])
@@ -304,6 +314,21 @@ def vertex_links(
         if covered >= coverage * L[p]:
             links[a[p], b[p]] = links[b[p], a[p]] = True
     return links
+
+
+def _slack(vertices: Vertices, segments: Segments, cap: float) -> np.ndarray:
+    """`(V,)` each vertex's largest distance to the lines of its own segments (zero
+    where two lines cross exactly), at most `cap` px."""
+    ends = segments.ends
+    index = np.asarray(vertices.segments, np.int64).reshape(len(vertices.points), -1)
+    if index.size == 0:
+        return np.zeros(len(vertices.points))
+    d = segment_directions(ends)
+    normal = np.column_stack([-d[:, 1], d[:, 0]])
+    safe = np.clip(index, 0, len(ends) - 1)
+    off = np.abs(np.sum((vertices.points[:, None] - ends[safe, 0]) * normal[safe], axis=-1))
+    off = np.where((index >= 0) & (index < len(ends)), off, 0.0)
+    return np.minimum(np.max(off, axis=1), cap)
 
 
 # --------------------------------------------------------------------------- front end
