@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from ..geometry._numerics import safe_div, safe_sqrt
+from ._p3p import depressed_cubic
 
 __all__ = ["cubic_polish", "cubic_start"]
 
@@ -62,12 +63,7 @@ def cubic_start(a, b, c):
     """Initial real roots of `x^3 + a x^2 + b x + c` (the closed form of
     `_p3p._cubic_roots`, its trigonometric branch through `_trisect`, Cardano's through
     `_cbrt`), three arrays."""
-    p = b - a * a / 3
-    q = 2 * a**3 / 27 - a * b / 3 + c
-    disc = (q / 2) ** 2 + (p / 3) ** 3
-    three = disc < 0
-    m = safe_sqrt(-p / 3)
-    arg = jnp.clip(jnp.where(three, safe_div(-q / 2, m**3), 0), -1, 1)
+    p, q, disc, three, m, arg = depressed_cubic(a, b, c)
     co, si = _trisect(arg)
     half = jnp.sqrt(3.0) / 2
     # 2 m cos(phi - 2 pi k / 3), phi = arccos(arg) / 3, k = 0, 1, 2

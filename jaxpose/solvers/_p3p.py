@@ -81,16 +81,25 @@ def _unit(v):
     return v * safe_div(1, safe_sqrt(jnp.sum(v * v, axis=-1, keepdims=True)))
 
 
-def _cubic_roots(a, b, c):
-    """Real roots of `x^3 + a x^2 + b x + c`, shape (3,): all three when real, else the
-    single real root three times. Closed form (trigonometric / Cardano without
-    cancellation), then two guarded Newton steps."""
+def depressed_cubic(a, b, c):
+    """The closed form's start for `x^3 + a x^2 + b x + c` (any shape): with `x = y - a/3`,
+    `y^3 + p y + q`; `(p, q, disc, three, m, arg)`, `disc` the discriminant's sign term,
+    `three` whether the three roots are real, `m = sqrt(-p/3)` and `arg` the cosine of
+    three times the trigonometric angle."""
     p = b - a * a / 3
     q = 2 * a**3 / 27 - a * b / 3 + c
     disc = (q / 2) ** 2 + (p / 3) ** 3
     three = disc < 0
     m = safe_sqrt(-p / 3)
     arg = jnp.clip(jnp.where(three, safe_div(-q / 2, m**3), 0), -1, 1)
+    return p, q, disc, three, m, arg
+
+
+def _cubic_roots(a, b, c):
+    """Real roots of `x^3 + a x^2 + b x + c`, shape (3,): all three when real, else the
+    single real root three times. Closed form (trigonometric / Cardano without
+    cancellation), then two guarded Newton steps."""
+    p, q, disc, three, m, arg = depressed_cubic(a, b, c)
     phi = jnp.arccos(arg) / 3
     k = jnp.arange(3, dtype=a.dtype)
     trig = 2 * m * jnp.cos(phi - 2 * jnp.pi * k / 3)
