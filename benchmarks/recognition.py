@@ -48,22 +48,22 @@ DATABASE = ("cross_prism", "l_block", "hexagonal_prism")
 TARGETS = {"right": 0.95, "false": 0, "seconds": 1.0}
 BOX = Path(__file__).resolve().parents[1] / "tests" / "data" / "opencv_pose_box"
 BOX_K = np.array([[1384.484, 0.0, 359.0], [0.0, 1385.235, 240.0], [0.0, 0.0, 1.0]])
+#: The box's visible corners measured on the photograph: mesh vertex, u, v (px).
+BOX_CORNERS = np.loadtxt(BOX / "corners.csv", delimiter=",")
 BOX_REFERENCE = (np.array([2.05445, -0.78674, 0.31403]), np.array([-1.0904, 11.6255, 91.0701]))
 
 
 def _corner_errors(uv: np.ndarray) -> dict:
     """The measured corners against the projected vertices `uv` (each corner to the
     nearest): `{"rms", "max", "each"}` in px."""
-    corners = np.loadtxt(BOX / "corners.csv", delimiter=",")[:, 1:]
-    e = _vertex_error(corners, uv)
+    e = _vertex_error(BOX_CORNERS[:, 1:], uv)
     return {"rms": float(np.sqrt(np.mean(e**2))), "max": float(e.max()), "each": e.tolist()}
 
 
 def _corner_floor(vertices: np.ndarray) -> dict:
     """The mesh's own least-squares fit to the measured corners: `_corner_errors` there."""
-    table = np.loadtxt(BOX / "corners.csv", delimiter=",")
-    obj = np.asarray(vertices[table[:, 0].astype(int)], np.float64)
-    img = np.ascontiguousarray(table[:, 1:])
+    obj = np.asarray(vertices[BOX_CORNERS[:, 0].astype(int)], np.float64)
+    img = np.ascontiguousarray(BOX_CORNERS[:, 1:])
     _, rvec, tvec = cv2.solvePnP(obj, img, BOX_K, None, flags=cv2.SOLVEPNP_SQPNP)
     rvec, tvec = cv2.solvePnPRefineLM(obj, img, BOX_K, None, rvec, tvec)
     uv, _ = cv2.projectPoints(vertices, rvec, tvec, BOX_K, None)
