@@ -4,7 +4,9 @@ programs cached for the run."""
 import os
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+os.environ.setdefault(
+    "XLA_FLAGS", "--xla_force_host_platform_device_count=1 --xla_cpu_use_fusion_emitters=false"
+)
 # One compilation of each program for the whole run, shared by the workers (and by the
 # command-line subprocesses, which read the same variable): jaxpose's program cache and
 # JAX's persistent compilation cache under .pytest_cache/.

@@ -22,10 +22,13 @@ rows written in the world frame.
 **The step.** `linear_step_kernel` is `linear_step(..., weighting="depth")`: the
 depth-weighted rows at the reprojected pixel (Gauss-Newton on Eq. 8), the rotation about
 the masked centroid `c` of the world points, the 21 + 6 sums of the normal equations over
-the points, taken back to the world frame (`G = B^T G' B`, `B = diag(Q', Q')`, `Q'` the
-whitened frame), column equilibration, the unrolled Cholesky of `cholesky_solve` with its
+the points, column equilibration, the unrolled Cholesky of `cholesky_solve` with its
 pivot floor, a non-finite solution component set to `0`, the exact update
-`R <- Rot(r) R`, `t <- Rot(r) (t - c) + c + dt`, and the same step size.
+`R <- Rot(r) R`, `t <- Rot(r) (t - c) + c + dt`, and the same step size. The system is
+solved in the whitened frame (`G' x' = g'`) and its solution turned back to the world
+frame (`x = B^T x'`, `B = diag(Q', Q')`, `Q'` the whitened frame): the same solution as
+the reference's world-frame system (an orthogonal change of variables) up to rounding,
+with 6 products instead of the 57 of `G = B^T G' B`.
 
 **XLA:CPU.** Two constructions keep the work in a few fused loops:
 - the sums over the points are one variadic reduction (`_sum_points`): every term shares
@@ -49,7 +52,16 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ..geometry._pose import Observations
-from ._components import Mat3, Vec3, cross, dot, matmul, matvec, rotvec_matrix
+from ._components import (
+    Mat3,
+    Vec3,
+    cross,
+    dot,
+    matmul,
+    matvec,
+    rotvec_matrix,
+    transpose_matvec,
+)
 from ._linear import default_tol
 from ._status import Status
 
@@ -342,55 +354,22 @@ def _normal_sums(pr: _Projection, m: Matches) -> list[Array]:
     return list(_sum_points(tuple(terms)))
 
 
-def _dot3(a: Sequence[Array], b: Sequence[Array]) -> Array:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _world_system(sums: list[Array], Q: Mat3) -> tuple[dict, list[Array]]:
-    """The normal equations `G x = g` of the world-frame step `x = (dt, r)` from the
-    whitened frame's sums: `G = B^T G' B`, `g = B^T g'`, `B = diag(Q, Q)`. `G[i, j]`,
-    `i >= j`."""
+def _frame_system(sums: list[Array]) -> tuple[dict, list[Array]]:
+    """The normal equations `G' x' = g'` of the step in the whitened frame,
+    `x' = (dt', r')` (`G'[i, j]`, `i >= j`), from the 26 sums of `_normal_sums`."""
     Wx, Wy = sums[0], sums[1]
     Wp, Wq, pq = sums[2:6], sums[6:10], sums[10:20]
     gx, gy, gpq = sums[20], sums[21], sums[22:26]
-    zero = jnp.zeros_like(Wx)
-    Gc: dict = {(0, 0): Wx, (1, 1): Wy, (1, 0): zero}
+    G: dict = {(0, 0): Wx, (1, 1): Wy, (1, 0): jnp.zeros_like(Wx)}
     for i in range(4):
-        Gc[2 + i, 0] = Wp[i]
-        Gc[2 + i, 1] = Wq[i]
+        G[2 + i, 0] = Wp[i]
+        G[2 + i, 1] = Wq[i]
     k = 0
     for i in range(4):
         for j in range(i + 1):
-            Gc[2 + i, 2 + j] = pq[k]
+            G[2 + i, 2 + j] = pq[k]
             k += 1
-    gc = [-gx, -gy, *(-s for s in gpq)]
-
-    def gcam(i, j):
-        return Gc[max(i, j), min(i, j)]
-
-    q = ((Q.xx, Q.xy, Q.xz), (Q.yx, Q.yy, Q.yz), (Q.zx, Q.zy, Q.zz))
-    # H = G' B (blocks: H[i, 3 J + b] = sum_k G'[i, 3 J + k] Q[k, b]), then B^T H.
-    keys = [(i, b) for i in range(6) for b in range(6)]
-    H = {
-        (i, b): _dot3(
-            [gcam(i, 3 * (b // 3) + k) for k in range(3)], [q[k][b % 3] for k in range(3)]
-        )
-        for i, b in keys
-    }
-    H = dict(zip(keys, _fused([H[key] for key in keys], group=9)))
-    G = {}
-    for i in range(6):
-        for j in range(i + 1):
-            G[i, j] = _dot3(
-                [q[k][i % 3] for k in range(3)], [H[3 * (i // 3) + k, j] for k in range(3)]
-            )
-    g = [
-        _dot3([q[k][i % 3] for k in range(3)], gc[3 * (i // 3) : 3 * (i // 3) + 3])
-        for i in range(6)
-    ]
-    keys = list(G)
-    out = _fused([G[key] for key in keys] + g, group=9)
-    return dict(zip(keys, out[:21])), out[21:]
+    return G, [-gx, -gy, *(-s for s in gpq)]
 
 
 def _solve6(G: dict, g: list[Array]) -> list[Array]:
@@ -399,13 +378,13 @@ def _solve6(G: dict, g: list[Array]) -> list[Array]:
     non-finite component set to `0`."""
     n = 6
     dtype = g[0].dtype
-    scale = [jnp.sqrt(G[i, i]) for i in range(n)]
-    scale = _fused([jnp.where(s > 0, s, 1) for s in scale])
-    inv = [1 / s for s in scale]
+    # the column scales and the pivot floor: one stage (the divisions computed once)
+    inv = [1 / jnp.where(G[i, i] > 0, jnp.sqrt(G[i, i]), 1) for i in range(n)]
+    trace = sum(G[i, i] * (inv[i] * inv[i]) for i in range(n)) / n
+    floor = jnp.where(trace > 0, jnp.finfo(dtype).eps * trace, jnp.finfo(dtype).tiny)
+    *inv, floor = _fused([*inv, floor])
     A = {(i, j): G[i, j] * (inv[i] * inv[j]) for (i, j) in G}
     b = [g[i] * inv[i] for i in range(n)]
-    trace = (A[0, 0] + A[1, 1] + A[2, 2] + A[3, 3] + A[4, 4] + A[5, 5]) / n
-    floor = jnp.where(trace > 0, jnp.finfo(dtype).eps * trace, jnp.finfo(dtype).tiny)
     L: dict = {}
     d: list = [None] * n
     for j in range(n):
@@ -413,7 +392,7 @@ def _solve6(G: dict, g: list[Array]) -> list[Array]:
         for k in range(j):
             s = s - L[j, k] * L[j, k]
         s = jnp.where(jnp.isfinite(s), s, floor)
-        dj = 1 / jnp.sqrt(jnp.maximum(s, floor))
+        dj = jax.lax.rsqrt(jnp.maximum(s, floor))
         col = [dj]
         for i in range(j + 1, n):
             s = A[i, j]
@@ -424,13 +403,13 @@ def _solve6(G: dict, g: list[Array]) -> list[Array]:
         d[j] = col[0]
         for i in range(j + 1, n):
             L[i, j] = col[i - j]
+    # the two triangular solves: multiplications only, left to the caller's stage
     y: list = [None] * n
     for i in range(n):
         s = b[i]
         for k in range(i):
             s = s - L[i, k] * y[k]
         y[i] = s * d[i]
-    y = _fused(y)
     x: list = [None] * n
     for i in reversed(range(n)):
         s = y[i]
@@ -438,7 +417,7 @@ def _solve6(G: dict, g: list[Array]) -> list[Array]:
             s = s - L[k, i] * x[k]
         x[i] = s * d[i]
     x = [xi * ii for xi, ii in zip(x, inv)]
-    return _fused([jnp.where(jnp.isfinite(xi), xi, 0) for xi in x])
+    return [jnp.where(jnp.isfinite(xi), xi, 0) for xi in x]
 
 
 def linear_step_kernel(R: Mat3, t: Vec3, matches: Matches) -> tuple[Mat3, Vec3, Array]:
@@ -455,18 +434,26 @@ def linear_step_kernel(R: Mat3, t: Vec3, matches: Matches) -> tuple[Mat3, Vec3, 
     rotation, as the object's size is measured on the model).
     """
     R, t, m, _ = _prepare(R, t, matches)
+    out = _fused(_step(R, t, m))
+    return Mat3(*out[:9]), Vec3(*out[9:12]), out[12]
+
+
+def _step(R: Mat3, t: Vec3, m: Matches) -> list[Array]:
+    """`linear_step_kernel`'s new `R` (9), `t` (3) and step size, as a list of arrays
+    left for the caller to write out (`_fused`, or stacked as a loop's state)."""
     pr = _project(R, t, m)
-    G, g = _world_system(_normal_sums(pr, m), m.frame)
+    G, g = _frame_system(_normal_sums(pr, m))
     x = _solve6(G, g)
-    dt, r = Vec3(*x[:3]), Vec3(*x[3:])
+    # back to the world frame: x = diag(Q, Q)^T x'
+    dt = transpose_matvec(m.frame, Vec3(*x[:3]))
+    r = transpose_matvec(m.frame, Vec3(*x[3:]))
     Rr = Mat3(*_fused(list(rotvec_matrix(r))))
     c = pr.centre
     R_new = matmul(Rr, R)
     tc = matvec(Rr, Vec3(t.x - c.x, t.y - c.y, t.z - c.z))
     t_new = Vec3(tc.x + c.x + dt.x, tc.y + c.y + dt.y, tc.z + c.z + dt.z)
     step = jnp.sqrt(dot(r, r)) + jnp.sqrt(dot(dt, dt)) / m.spread
-    out = _fused([*R_new, *t_new, step])
-    return Mat3(*out[:9]), Vec3(*out[9:12]), out[12]
+    return [*R_new, *t_new, step]
 
 
 # --------------------------------------------------------------------------- errors

@@ -47,6 +47,8 @@ from ..solvers._components import (
     Vec3,
     degeneracy,
     mat_to_array,
+    stacked,
+    take_along,
     transpose_matvec,
     vec_to_array,
 )
@@ -150,12 +152,6 @@ def answer_triplets(obs: Observations, options: Options) -> Int[Array, "B T 3"]:
     return chosen[:, triplet_indices(k)]
 
 
-def _gather(a: Array, index: Array) -> Array:
-    """`a[b, index[b, ...]]` along the second axis."""
-    flat = index.reshape(index.shape[0], -1)
-    return jnp.take_along_axis(a, flat, axis=1).reshape(index.shape)
-
-
 def _roots(obs: Observations, m: Matches, triplets: Int[Array, "B T 3"], options: Options):
     """Every root of every triplet, as `Mat3` / `Vec3` of `(B, 4 T)` and a validity mask:
     the three-point kernel on the world bearings of the matches (`frame^T (x, y, 1)` from
@@ -165,23 +161,20 @@ def _roots(obs: Observations, m: Matches, triplets: Int[Array, "B T 3"], options
     one = jnp.ones_like(m.x)
     f = transpose_matvec(Mat3(*(a[:, None] for a in m.frame)), Vec3(m.x, m.y, one))
     centre = transpose_matvec(m.frame, m.offset)
-    model = Vec3(obs.model[..., 0], obs.model[..., 1], obs.model[..., 2])
-    p0, p1, p2 = (triplets[..., i] for i in range(3))
+    # the matches of every triplet: one gather of every per-match quantity
+    fields = [*f, *(obs.model[..., i] for i in range(3)), obs.image[..., 0], obs.image[..., 1]]
+    index = triplets.reshape(B, 3 * T)
+    got = [a.reshape(B, T, 3) for a in take_along([*fields, obs.mask], index, axis=1)]
 
-    def vecs(v: Vec3) -> tuple[Vec3, Vec3, Vec3]:
-        one, two, three = (Vec3(*(_gather(a, p) for a in v)) for p in (p0, p1, p2))
-        return one, two, three
+    def corners(a: Array) -> tuple[Array, Array, Array]:
+        return a[..., 0], a[..., 1], a[..., 2]
 
-    def scalars(a: Array):
-        return _gather(a, p0), _gather(a, p1), _gather(a, p2)
-
-    bearings, points = vecs(f), vecs(model)
-    u, v = scalars(obs.image[..., 0]), scalars(obs.image[..., 1])
+    fx, fy, fz, mx, my, mz, u, v, used = map(corners, got)
+    bearings = (Vec3(fx[0], fy[0], fz[0]), Vec3(fx[1], fy[1], fz[1]), Vec3(fx[2], fy[2], fz[2]))
+    points = (Vec3(mx[0], my[0], mz[0]), Vec3(mx[1], my[1], mz[1]), Vec3(mx[2], my[2], mz[2]))
     c = p3p_components(bearings, points)
     bad_image, bad_model = degeneracy(u, v, points, options.min_area, options.collinear_tol)
-    m0, m1, m2 = scalars(obs.mask)
-    used = m0 & m1 & m2
-    ok = used & ~bad_image & ~bad_model
+    ok = used[0] & used[1] & used[2] & ~bad_image & ~bad_model
     valid = (c.real | c.near) & c.positive & ok[..., None]
     t = Vec3(*(a - o[:, None, None] for a, o in zip(c.t, centre, strict=True)))
 
@@ -203,8 +196,9 @@ def distinct_best(
     for _ in range(K):
         i = jnp.argmin(score, axis=-1)
         picks.append(i)
-        found.append(jnp.take_along_axis(score, i[:, None], axis=-1)[:, 0] < big)
-        Ri = Mat3(*(jnp.take_along_axis(a, i[:, None], axis=-1) for a in R))
+        si, *Ri = take_along([score, *R], i[:, None], axis=1)
+        found.append(si[:, 0] < big)
+        Ri = Mat3(*Ri)
         # trace(Ri^T R): the sum of the products of corresponding entries
         cos_sum = sum(a * b for a, b in zip(Ri, R, strict=True))
         score = jnp.where(cos_sum > near, big, score)
@@ -221,7 +215,8 @@ def _linear_starts(R: Mat3, t: Vec3, m: Matches, iterations: int):
         R, t = Mat3(*(a[:, 0] for a in R)), Vec3(*(a[:, 0] for a in t))
     else:
         R, t = Mat3(*(a.reshape(B * K) for a in R)), Vec3(*(a.reshape(B * K) for a in t))
-        m = jax.tree.map(lambda a: jnp.repeat(a, K, axis=0), m)
+        leaves, tree = jax.tree.flatten(m)
+        m = jax.tree.unflatten(tree, stacked(lambda a: jnp.repeat(a, K, axis=0), leaves))
     R1, t1, error, _, status = linear_kernel(R, t, m, iterations)
     R1, t1 = Mat3(*(a.reshape(B, K) for a in R1)), Vec3(*(a.reshape(B, K) for a in t1))
     return R1, t1, error.reshape(B, K), status.reshape(B, K)
@@ -242,8 +237,8 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     # 3. the linear method from the best distinct few
     K = refine_count(options, score.shape[1])
     pick, started = distinct_best(score, R, K)
-    R0 = Mat3(*(jnp.take_along_axis(a, pick, axis=-1) for a in R))
-    t0 = Vec3(*(jnp.take_along_axis(a, pick, axis=-1) for a in t))
+    picked = take_along([*R, *t], pick, axis=1)
+    R0, t0 = Mat3(*picked[:9]), Vec3(*picked[9:])
     R1, t1, lin_error, lin_status = _linear_starts(R0, t0, m, options.linear_iterations)
     converged = started & (lin_status == Status.OK)
     error = jnp.where(converged, lin_error, big)
@@ -256,10 +251,10 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     else:
         thr = jnp.full_like(best, options.threshold)
     k = jnp.argmin(error, axis=-1)[:, None]
-    accepted = jnp.take_along_axis(converged, k, axis=-1)[:, 0] & (best < thr)
-    R1 = Mat3(*(jnp.take_along_axis(a, k, axis=-1)[:, 0] for a in R1))
-    t1 = Vec3(*(jnp.take_along_axis(a, k, axis=-1)[:, 0] for a in t1))
-    error = jnp.take_along_axis(lin_error, k, axis=-1)[:, 0]
+    chosen = [a[:, 0] for a in take_along([*R1, *t1, lin_error, converged, pick], k, axis=1)]
+    R1, t1, error = Mat3(*chosen[:9]), Vec3(*chosen[9:12]), chosen[12]
+    converged_k, root = chosen[13], chosen[14]
+    accepted = converged_k & (best < thr)
     pose = Pose(mat_to_array(R1), vec_to_array(t1))
 
     # 5. the planar partner of the answer (its linear run only in a block that has one)
@@ -288,11 +283,9 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
         error = jnp.where(better, other, error)
 
     first = jnp.where(started[:, 0], lin_status[:, 0], Status.NO_SOLUTION)
-    converged_k = jnp.take_along_axis(converged, k, axis=-1)[:, 0]
     status = jnp.where(
         accepted, Status.ACCEPTED_LINEAR, jnp.where(converged_k, Status.REJECTED, first)
     )
-    root = jnp.take_along_axis(pick, k, axis=-1)[:, 0]
     triplet = jnp.take_along_axis(triplets, (root // 4)[:, None, None], axis=1)[:, 0]
     return Best(
         pose=pose,

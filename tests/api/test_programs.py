@@ -150,7 +150,9 @@ def test_a_program_stored_beside_jax_persistent_cache_loads_and_runs(tmp_path):
         from jaxpose.api import _programs
         from tests.api.test_programs import _wavy
         if sys.argv[1] == "cached":  # the store as it was: JAX's cached executable kept
-            _programs._compile = lambda lowered, fresh: lowered.compile()
+            _programs._compile = lambda lowered, fresh: lowered.compile(
+                compiler_options=_programs.compiler_options()
+            )
         p = _programs.Program(_wavy, "tests.wavy-process-" + sys.argv[2])
         y = p(jnp.arange(5.0), jnp.ones(5))
         print(p.compiled, p.loaded, repr(float(y.sum())))
@@ -232,3 +234,29 @@ def test_every_n_from_4_to_40_compiles_one_program_per_bucket():
 def _programs_in_use() -> int:
     """Executables held by `solve_pnp`'s programs in this process."""
     return sum(len(p._memo) for p in _programs._PROGRAMS.values())
+
+
+def test_the_programs_compiler_options_give_the_default_answers():
+    """`Program` compiles with `compiler_options()` (XLA:CPU's element-wise emitters):
+    the `solve_pnp` program gives the answers of XLA's default code generation."""
+    from jaxpose.api import _pnp
+
+    assert _programs.compiler_options() == (
+        _programs.CPU_COMPILER_OPTIONS if jax.default_backend() == "cpu" else {}
+    )
+    rng = np.random.default_rng(5)
+    scene = jp.apps.random_scene(rng, 12, noise=0.5, world_camera=False)
+    K = np.asarray(scene.camera)[:, :3]
+    first, _ = _pnp._stages(jp.Options())
+    obj, img, mask = _pnp._pad_points(
+        np.asarray(scene.model_points), np.asarray(scene.image_points)
+    )
+    with jax.enable_x64(True):
+        packed = _pnp._pack(K, obj, img, mask)
+        lowered = jax.jit(lambda p: _pnp._solve_opencv(p, first)).lower(packed)
+        ours = np.asarray(lowered.compile(compiler_options=_programs.compiler_options())(packed))
+        default = np.asarray(
+            lowered.compile(compiler_options={"xla_cpu_use_fusion_emitters": True})(packed)
+        )
+    assert ours[0] == 1
+    np.testing.assert_allclose(ours, default, rtol=1e-10, atol=1e-12)

@@ -1,9 +1,9 @@
 """Sharded and chunked batches (`jaxpose.api.run_batched`, `solve_batch`, `solve_pnp_batch`).
 
 The multi-device checks run in a subprocess with 8 forced CPU host devices
-(`XLA_FLAGS=--xla_force_host_platform_device_count=8`): this process keeps one device
-(`conftest.py`). They compare, row by row, the sharded and chunked paths with the plain
-single-device call.
+(`--xla_force_host_platform_device_count=8` in `XLA_FLAGS`, the other flags kept): this
+process keeps one device (`conftest.py`). They compare, row by row, the sharded and
+chunked paths with the plain single-device call.
 """
 
 from __future__ import annotations
@@ -30,7 +30,10 @@ def _run_child(code: str, out_dir, timeout: int = 900) -> dict:
     """Run `code` with 8 host devices; it saves its arrays to `out_dir/out.npz`."""
     env = {
         **os.environ,
-        "XLA_FLAGS": "--xla_force_host_platform_device_count=8",
+        "XLA_FLAGS": " ".join(
+            [f for f in os.environ.get("XLA_FLAGS", "").split() if "device_count" not in f]
+            + ["--xla_force_host_platform_device_count=8"]
+        ),
         "JAX_PLATFORMS": "cpu",
         "OUT": str(out_dir / "out.npz"),
     }

@@ -318,7 +318,9 @@ def test_three_point_batch_equals_vmapped_three_point():
 
 def test_three_point_batch_in_passes():
     """Passes of a few triplets (the last one padded) give the one-pass results, for one
-    camera and for one camera per triplet (its centre travels with the passes)."""
+    camera and for one camera per triplet (its centre travels with the passes): the same
+    flags and statuses, the same values to rounding (the machine code for a pass of
+    another length may vectorise, and so round, differently)."""
     rng = np.random.default_rng(12)
     scenes = [_scene(rng, s) for s in [1.0, -2.0, 0.5] * 10]
     C, m, uv, _, _ = (np.stack(x) for x in zip(*scenes, strict=True))
@@ -326,7 +328,10 @@ def test_three_point_batch_in_passes():
         one = jax.tree.map(np.asarray, _tp_ker(cams, m, uv, chunk=0))
         passes = jax.tree.map(np.asarray, _tp_ker(cams, m, uv, chunk=7))
         for a, b in zip(one, passes, strict=True):
-            assert np.array_equal(a, b)
+            if np.issubdtype(a.dtype, np.floating):
+                np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
+            else:
+                assert np.array_equal(a, b)
         assert (one.status == Status.OK).mean() > 0.5
 
 
