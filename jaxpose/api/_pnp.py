@@ -159,9 +159,9 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
     K = as_intrinsics(camera_matrix_, "camera_matrix")
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
     if not batched:
-        obj = as_points(object_points, "object_points", 3, min_count=3)
-        img = as_points(image_points, "image_points", 2, min_count=3)
-        as_matching(obj, img)
+        obj, img = as_matching(object_points, image_points, min_count=3)
+        if dist is None:
+            return K, dist, obj, img, img
         return K, dist, obj, img, np.asarray(undistort_pixels(img, K, dist))
     img = as_point_batch(image_points, "image_points", 2, min_count=3)
     B, n = img.shape[:2]
@@ -220,7 +220,8 @@ def solve_pnp(
         object_points, image_points, camera_matrix, dist_coeffs, False
     )
     first, then = _stages(options)
-    _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
+    if dist is not None:  # the pixels as given, for the refinement in the image
+        _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
     K = np.asarray(K, np.float64)
     with jax.enable_x64(True):

@@ -188,8 +188,16 @@ def as_intrinsics(K: object, name: str = "camera_matrix") -> np.ndarray:
     arr = _as_real_array(K, name)
     if arr.shape != (3, 3):
         raise ValueError(f"{name} must be a 3x3 intrinsic matrix, got shape {arr.shape}")
-    _check_finite(arr, name)
-    k = arr.astype(np.float64)
+    _check_intrinsics(np.ascontiguousarray(arr, dtype=np.float64).tobytes(), name)
+    return arr
+
+
+@functools.lru_cache(maxsize=64)
+def _check_intrinsics(data: bytes, name: str) -> None:
+    """`as_intrinsics`'s checks of the 3x3 float64 matrix `data` (its bytes): a camera
+    matrix passed again and again is checked once (a failed check is not cached)."""
+    k = np.frombuffer(data, np.float64).reshape(3, 3)
+    _check_finite(k, name)
     if k[2, 2] == 0:
         raise ValueError(f"{name}[2, 2] must be nonzero")
     scale = np.max(np.abs(k))
@@ -203,7 +211,6 @@ def as_intrinsics(K: object, name: str = "camera_matrix") -> np.ndarray:
     if not (fx > 0 and fy > 0):
         raise ValueError(f"{name} must have positive focal lengths, got fx={fx}, fy={fy}")
     _check_nonsingular(k, name, "the matrix")
-    return arr
 
 
 def as_dist_coeffs(d: object, name: str = "dist_coeffs") -> np.ndarray | None:

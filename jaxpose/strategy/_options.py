@@ -22,6 +22,7 @@ fields, `solve(C, M, I, method="linear")` meaning
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from typing import Any, TypeGuard, TypeVar
@@ -230,6 +231,12 @@ class RobustOptions:
 _O = TypeVar("_O", Options, RobustOptions)
 
 
+@functools.cache
+def _defaults(kind: type[_O]) -> _O:
+    """`kind()`, made once (the options are frozen: one instance serves every call)."""
+    return kind()
+
+
 @no_type_check  # it checks its arguments itself (`ValueError`), as `Options` does
 def resolve(options: _O | None, changes: Mapping[str, Any], kind: type[_O] = Options) -> _O:
     """The options an entry point runs with: `options` (`None`: `kind()`, the defaults)
@@ -238,7 +245,9 @@ def resolve(options: _O | None, changes: Mapping[str, Any], kind: type[_O] = Opt
     **Raises:** `ValueError` naming an unknown keyword, a wrong type of `options`, or the
     field of a bad value.
     """
-    base = kind() if options is None else options
+    if options is None and not changes:
+        return _defaults(kind)
+    base = _defaults(kind) if options is None else options
     if not isinstance(base, kind):
         raise ValueError(
             f"options must be a jaxpose.{kind.__name__} or None, got {type(options).__name__}"
