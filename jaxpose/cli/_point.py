@@ -13,9 +13,12 @@ __all__ = ["cmd_point"]
 
 
 @functools.cache
-def _point_pipeline():
+def _point_pipeline(fallback: bool = True):
     """`jaxpose point`'s computation, compiled once per process: solve the bench, its pose
-    covariance, the click's point (and the true one), the robot's joints."""
+    covariance, the click's point (and the true one), the robot's joints. `fallback`:
+    `Options.fallback` of the solve (`False`: the program of the best roots alone, a
+    third of the whole algorithm's compilation; `cmd_point` runs the whole one only
+    when that finds no pose)."""
     import jax
 
     from ..api._solve import solve
@@ -25,7 +28,7 @@ def _point_pipeline():
     from ..strategy._covariance import pose_covariance
 
     def run(C, M, I, pixel, R_true, t_true, faces, click_cov, robot):
-        sol = solve(C, M, I)
+        sol = solve(C, M, I, fallback=fallback)
         cov = pose_covariance(C, M, I, sol.pose)
         hit = pick(C, faces, sol.pose, pixel, cov.covariance, click_cov)
         truth = pick(C, faces, Pose(R_true, t_true), pixel)
@@ -71,7 +74,7 @@ def cmd_point(args) -> int:
     robot = default_robot()
     with console.status("compiling and solving the bench, then pointing..."):
         t0 = time.perf_counter()
-        out = _point_pipeline()(
+        inputs = (
             *(jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points)),
             jnp.asarray([u, v], jnp.float64),
             jnp.asarray(bench.R),
@@ -80,6 +83,11 @@ def cmd_point(args) -> int:
             jnp.asarray(args.click_sigma**2 * np.eye(2)),
             robot,
         )
+        # The best roots first; the whole mixed algorithm (its own, larger program) only
+        # when they leave the bench without a pose: the answer is `solve`'s either way.
+        out = _point_pipeline(False)(*inputs)
+        if not bool(out[0].accepted):
+            out = _point_pipeline(True)(*inputs)
         sol, cov, hit, truth, cmd, state = jax.tree.map(np.asarray, out)
         elapsed = time.perf_counter() - t0
 

@@ -72,6 +72,36 @@ def test_unreachable_is_one_line(capsys, monkeypatch):
     assert "face 0 (top)" in out
 
 
+def test_the_whole_algorithm_runs_when_the_best_roots_find_no_pose(capsys, monkeypatch):
+    """`jaxpose point` runs the program of the best roots alone first; when it finds no
+    pose (here: made to say so), the whole mixed algorithm's program, whose answer is
+    printed."""
+    import jaxpose.cli._point as point_module
+
+    real = point_module._point_pipeline
+    calls = []
+
+    def pipeline(fallback=True):
+        run = real(False)  # (the program already compiled: the same answer on the bench)
+
+        def traced(*args):
+            calls.append(fallback)
+            sol, *rest = run(*args)
+            if not fallback:
+                sol = sol._replace(accepted=np.zeros((), bool))
+            return (sol, *rest)
+
+        return traced
+
+    monkeypatch.setattr(point_module, "_point_pipeline", pipeline)
+    uv, _ = _middle_pixel()
+    rc = main(["point", "--pixel", f"{uv[0]:.3f}", f"{uv[1]:.3f}"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert calls == [False, True]
+    assert re.search(r"face\s*│\s*0 \(top\)", out)
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
