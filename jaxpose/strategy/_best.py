@@ -208,11 +208,14 @@ def distinct_best(
 def _linear_starts(R: Mat3, t: Vec3, m: Matches, iterations: int):
     """The linear method from `K` starts of each problem (`R`, `t` of `(B, K)`), run as
     one flat batch of `B K` poses (each start beside a copy of its problem's matches: the
-    kernel's loops run over one long axis, faster than over `(B, K)` with `K` small).
-    Returns `(R, t, error, status)` of `(B, K)`."""
+    kernel's loops run over one long axis, faster than over `(B, K)` with `K` small; one
+    problem's matches broadcast to its starts, no copy made). Returns
+    `(R, t, error, status)` of `(B, K)`."""
     B, K = R.xx.shape
     if K == 1:
         R, t = Mat3(*(a[:, 0] for a in R)), Vec3(*(a[:, 0] for a in t))
+    elif B == 1:
+        R, t = Mat3(*(a[0] for a in R)), Vec3(*(a[0] for a in t))
     else:
         R, t = Mat3(*(a.reshape(B * K) for a in R)), Vec3(*(a.reshape(B * K) for a in t))
         leaves, tree = jax.tree.flatten(m)
