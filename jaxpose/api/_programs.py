@@ -18,9 +18,10 @@ cache), else `$XDG_CACHE_HOME/jaxpose`, else `~/.cache/jaxpose`; programs live i
 `programs/<fingerprint>/` under it. The fingerprint hashes jaxpose's own source files,
 the versions of jax and jaxlib, the backend, its devices and the processor: after an
 upgrade, an edit of the sources or on another machine a new folder is read, never an old
-program; the other folders are removed when a new one is made. A file that cannot be read
-back (truncated, or from an incompatible build) is compiled again and replaced. JAX's
-global configuration (its own persistent cache included) is never touched.
+program; when a new one is made, the folders of all but the `KEEP_BUILDS` builds used most
+recently are removed. A file that cannot be read back (truncated, or from an incompatible
+build) is compiled again and replaced. JAX's global configuration (its own persistent
+cache included) is never touched.
 
 `warm_up` (`jaxpose warmup` on the command line) builds the standard programs ahead of
 time.
@@ -56,6 +57,7 @@ def _version(package: str) -> str:
 __all__ = [
     "CACHE_ENV",
     "CPU_COMPILER_OPTIONS",
+    "KEEP_BUILDS",
     "POINT_BUCKETS",
     "Program",
     "bucket_points",
@@ -128,22 +130,38 @@ def fingerprint() -> str:
     return _FINGERPRINT
 
 
+#: Program folders kept: this build's and those of the builds used most recently before
+#: it (processes with other `XLA_FLAGS`, another virtual environment), so that two of
+#: them on one machine do not delete each other's programs; older folders are removed.
+KEEP_BUILDS = 4
+
+_TOUCHED: set[Path] = set()
+
+
 def _folder() -> Path | None:
-    """This build's program folder (made on first use, the stale ones removed), or
-    `None` when the disk cache is off or cannot be written."""
+    """This build's program folder (made on first use; when made, the folders of all but
+    the `KEEP_BUILDS` most recently used builds removed), or `None` when the disk cache
+    is off or cannot be written."""
     root = cache_dir()
     if root is None:
         return None
     programs = root / "programs"
     here = programs / fingerprint()
     if here.is_dir():
+        if here not in _TOUCHED:  # used: its age counts from now
+            _TOUCHED.add(here)
+            with contextlib.suppress(OSError):
+                os.utime(here)
         return here
     try:
         here.mkdir(parents=True, exist_ok=True)
     except OSError:
         return None
-    for other in programs.iterdir():  # programs of another build: never used again
-        if other != here and other.is_dir():
+    _TOUCHED.add(here)
+    with contextlib.suppress(OSError):
+        others = [p for p in programs.iterdir() if p != here and p.is_dir()]
+        others.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+        for other in others[KEEP_BUILDS - 1 :]:  # builds not used for longest
             shutil.rmtree(other, ignore_errors=True)
     return here
 

@@ -83,13 +83,20 @@ def test_programs_are_stored_loaded_and_rebuilt(monkeypatch, tmp_path):
     np.testing.assert_array_equal(broken(x), want)
     assert (broken.compiled, broken.loaded) == (1, 0)
     assert Program(_tiny, "tests.tiny").executable(x) is not None
-    # another build (jaxpose's sources, jax, the machine): a new folder, the old removed
+    # another build (jaxpose's sources, jax, the machine, XLA_FLAGS): a new folder, its
+    # own programs; the folders of the builds used longest ago removed, the
+    # `KEEP_BUILDS` most recent kept (two environments on one machine keep theirs)
     old = files[0].parent
-    monkeypatch.setattr(_programs, "_FINGERPRINT", "another-build")
-    rebuilt = Program(_tiny, "tests.tiny")
-    rebuilt(x)
-    assert (rebuilt.compiled, rebuilt.loaded) == (1, 0)
-    assert not old.exists() and (tmp_path / "programs" / "another-build").is_dir()
+    os.utime(old, (1e9, 1e9))  # used long ago
+    for k in range(1, _programs.KEEP_BUILDS + 1):
+        monkeypatch.setattr(_programs, "_FINGERPRINT", f"build-{k}")
+        rebuilt = Program(_tiny, "tests.tiny")
+        rebuilt(x)
+        assert (rebuilt.compiled, rebuilt.loaded) == (1, 0)
+        os.utime(tmp_path / "programs" / f"build-{k}", (1e9 + k, 1e9 + k))
+        assert old.exists() == (k < _programs.KEEP_BUILDS)
+    kept = sorted(p.name for p in (tmp_path / "programs").iterdir())
+    assert kept == [f"build-{k}" for k in range(1, _programs.KEEP_BUILDS + 1)]
 
 
 def test_cache_off_keeps_nothing(monkeypatch, tmp_path):

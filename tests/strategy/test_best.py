@@ -30,7 +30,11 @@ def _problems(kind: str, n: int, B: int, noise: float, seed: int):
 
 @functools.cache
 def _many(refine, threshold=None):
-    return jax.jit(lambda C, M, I: jp.solve_many(C, M, I, refine=refine, threshold=threshold))
+    """`solve_many` with these options, values only (`derivative=False`: the answers are
+    compared, not their derivatives; a smaller program to compile)."""
+    return jax.jit(
+        lambda C, M, I: jp.solve_many(C, M, I, refine=refine, threshold=threshold, derivative=False)
+    )
 
 
 def test_best_roots_reach_the_answer_of_every_triplet():
