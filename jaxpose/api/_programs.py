@@ -329,15 +329,16 @@ def _compile(lowered, fresh: bool):
     serializes without its machine code on the CPU (jax 0.10: the stored program, once
     loaded, fails with "Function ... not found"), so a program that will be stored is
     always compiled."""
-    options = compiler_options()
-    if not fresh:
-        return lowered.compile(compiler_options=options)
-    try:
-        from jax._src.config import enable_compilation_cache
-    except ImportError:  # pragma: no cover - a jax without the switch
-        return lowered.compile(compiler_options=options)
-    with enable_compilation_cache(False):
-        return lowered.compile(compiler_options=options)
+    bypass = contextlib.nullcontext()
+    if fresh:
+        try:
+            from jax._src.config import enable_compilation_cache
+
+            bypass = enable_compilation_cache(False)
+        except ImportError:  # pragma: no cover - a jax without the switch
+            pass
+    with bypass:
+        return lowered.compile(compiler_options=compiler_options())
 
 
 def program_name(fn: Callable, static: tuple = (), keywords: tuple = ()) -> str:

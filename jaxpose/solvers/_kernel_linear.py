@@ -434,13 +434,6 @@ def linear_step_kernel(R: Mat3, t: Vec3, matches: Matches) -> tuple[Mat3, Vec3, 
     rotation, as the object's size is measured on the model).
     """
     R, t, m, _ = _prepare(R, t, matches)
-    out = _fused(_step(R, t, m))
-    return Mat3(*out[:9]), Vec3(*out[9:12]), out[12]
-
-
-def _step(R: Mat3, t: Vec3, m: Matches) -> list[Array]:
-    """`linear_step_kernel`'s new `R` (9), `t` (3) and step size, as a list of arrays
-    left for the caller to write out (`_fused`, or stacked as a loop's state)."""
     pr = _project(R, t, m)
     G, g = _frame_system(_normal_sums(pr, m))
     x = _solve6(G, g)
@@ -453,7 +446,8 @@ def _step(R: Mat3, t: Vec3, m: Matches) -> list[Array]:
     tc = matvec(Rr, Vec3(t.x - c.x, t.y - c.y, t.z - c.z))
     t_new = Vec3(tc.x + c.x + dt.x, tc.y + c.y + dt.y, tc.z + c.z + dt.z)
     step = jnp.sqrt(dot(r, r)) + jnp.sqrt(dot(dt, dt)) / m.spread
-    return [*R_new, *t_new, step]
+    out = _fused([*R_new, *t_new, step])
+    return Mat3(*out[:9]), Vec3(*out[9:12]), out[12]
 
 
 # --------------------------------------------------------------------------- errors

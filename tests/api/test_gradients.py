@@ -91,12 +91,17 @@ def directions(batch: Batch, seed: int, groups=("k", "E", "M", "I")) -> Batch:
     return Batch(**d, mask=batch.mask)
 
 
-def _outputs(method, k, E, M, I, mask):
-    """(R.ravel(), t, rotvec(R), error, pose_error): 17 values, and the Solution."""
-    sol = jp.solve(_K(k) @ E, M, I, mask, method=method)
+def _vector(sol):
+    """(R.ravel(), t, rotvec(R), error, pose_error) of one Solution: 17 values."""
     rv = jp.matrix_to_rotvec(sol.pose.R)
     extra = jnp.stack([sol.error, sol.pose_error])
-    return jnp.concatenate([sol.pose.R.ravel(), sol.pose.t, rv, extra]), sol
+    return jnp.concatenate([sol.pose.R.ravel(), sol.pose.t, rv, extra])
+
+
+def _outputs(method, k, E, M, I, mask):
+    """`_vector` of `solve`'s answer, and the Solution."""
+    sol = jp.solve(_K(k) @ E, M, I, mask, method=method)
+    return _vector(sol), sol
 
 
 GROUPS = {"k": slice(0, 4), "E": slice(4, 16), "M": slice(16, 37), "I": slice(37, 51)}
@@ -131,11 +136,7 @@ def _values(method: str):
 
     def many(k, E, M, I, mask):
         sol = jp.solve_many(jax.vmap(_K)(k) @ E, M, I, mask, method=method)
-        rv = jax.vmap(jp.matrix_to_rotvec)(sol.pose.R)
-        extra = jnp.stack([sol.error, sol.pose_error], axis=1)
-        B = k.shape[0]
-        y = jnp.concatenate([sol.pose.R.reshape(B, 9), sol.pose.t, rv, extra], axis=1)
-        return y, sol
+        return jax.vmap(_vector)(sol), sol
 
     return jax.jit(many)
 
