@@ -399,10 +399,12 @@ def after_partner(
     return jobs, MixedState(pose, error, status, root, best)
 
 
-def _first_jobs(given: _Given, layout: _Layout, priority, fn, max_steps: int) -> Jobs:
-    """The job list for `fn` (`job`) with step 3's jobs set: a job per triplet, from its
-    best root, for those in `given.need`, lowest `priority` first. Levenberg-Marquardt
-    gets `max_steps` iterations in step 3, `PATIENCE` times as many in the retries."""
+def _first_jobs(given: _Given, layout: _Layout, priority, max_steps: int) -> Jobs:
+    """The job list for `job` with step 3's jobs set: a job per triplet, from its best
+    root, for those in `given.need`, lowest `priority` first. Levenberg-Marquardt gets
+    `max_steps` iterations in step 3, `PATIENCE` times as many in the retries. The result
+    slots have `job`'s output layout, `(pose, error, status)`, written out rather than
+    found by tracing `job` (that would trace it, Levenberg-Marquardt and all, twice)."""
     B, T, N0, N1, N2 = layout
     b = jnp.arange(B)
     problem = jnp.concatenate([jnp.repeat(b, T), jnp.repeat(b, 4 * T)[:N1], b[:N2]])
@@ -415,13 +417,18 @@ def _first_jobs(given: _Given, layout: _Layout, priority, fn, max_steps: int) ->
         return jnp.concatenate([x, jnp.zeros((n, *x.shape[1:]), x.dtype)])
 
     starts = jax.tree.map(lambda x: fill(flat(x), N1 + N2), given.initial.pose)
-    shapes = jax.eval_shape(fn, problem[0], jax.tree.map(lambda x: x[0], starts), steps[0])
+    N, dtype = N0 + N1 + N2, given.lin.error.dtype
+    results = (
+        Pose(jnp.zeros((N, 3, 3), dtype), jnp.zeros((N, 3), dtype)),
+        jnp.zeros(N, dtype),
+        jnp.zeros(N, jnp.int32),
+    )
     return Jobs(
         need=fill(flat(given.need), N1 + N2),
         priority=fill(flat(priority), N1 + N2),
         args=(problem, starts, steps),
-        results=jax.tree.map(lambda s: jnp.zeros((N0 + N1 + N2, *s.shape), s.dtype), shapes),
-        done=jnp.zeros(N0 + N1 + N2, bool),
+        results=results,
+        done=jnp.zeros(N, bool),
     )
 
 
@@ -504,7 +511,7 @@ def mixed_from_initial_batch(
     need3 = _ranked_batch(usable & ~accepted2, priority, options.nonlinear_budget)
     given = _Given(obs, initial, lin, usable, accepted2, need3)
     fn = functools.partial(job, obs, thr, options.linear_iterations, lm_bound)
-    jobs = _first_jobs(given, layout, priority, fn, options.max_steps)
+    jobs = _first_jobs(given, layout, priority, options.max_steps)
     phases = [
         functools.partial(
             after_step3, given=given, layout=layout, budget=options.second_chance_budget
