@@ -151,11 +151,14 @@ def test_solve_is_jit_vmap_and_grad_friendly():
     C = jnp.stack([s.camera for s in scenes])
     M = jnp.stack([s.model_points for s in scenes])
     I = jnp.stack([s.image_points for s in scenes])
-    sols = jax.jit(jax.vmap(jp.solve))(C, M, I)
+    # jit, vmap and grad in one program (one compilation): the gradient of each
+    # problem's translation with respect to its pixels, and its solution.
+
+    def loss(camera, model, image):
+        sol = jp.solve(camera, model, image)
+        return jnp.sum(sol.pose.t), sol
+
+    g, sols = jax.jit(jax.vmap(jax.grad(loss, argnums=2, has_aux=True)))(C, M, I)
     assert np.all(np.asarray(sols.accepted))
-
-    def loss(image):
-        return jnp.sum(jp.solve(C[0], M[0], image).pose.t)
-
-    g = jax.jit(jax.grad(loss))(I[0])
-    assert g.shape == (6, 2) and np.all(np.isfinite(g)) and np.any(g != 0)
+    assert g.shape == (3, 6, 2) and np.all(np.isfinite(g))
+    assert all(np.any(np.asarray(g[b]) != 0) for b in range(3))

@@ -725,6 +725,10 @@ _solve = jax.jit(jp.solve_many)
 REJECTED_KINDS = ("collinear", "near_collinear", "duplicated", "zero_area", "too_few")
 
 
+# Kinds of generated problem that `solve` reports as degenerate (see `test_solve`).
+DEGENERATE_SOLVE_KINDS = ("collinear", "near_collinear", "duplicated", "zero_area")
+
+
 def _check_solutions(out, s, dtype):
     """Properties every answer of `solve` has, whatever its input."""
     assert _finite(out.pose, out.error, out.pose_error)
@@ -766,7 +770,7 @@ def test_solve(dtype):
     assert np.all(_front(C, R, t, m, s["mask"])[out.accepted])
     # Degenerate problems: not accepted, and the status says why.
     assert not np.any(out.accepted[is_kind(*REJECTED_KINDS)])
-    deg = is_kind("collinear", "near_collinear", "duplicated", "zero_area")
+    deg = is_kind(*DEGENERATE_SOLVE_KINDS)
     assert np.all(np.isin(out.status[deg], [S.DEGENERATE_IMAGE, S.DEGENERATE_MODEL]))
     assert np.all(out.status[is_kind("too_few")] == S.TOO_FEW_POINTS)
     # Valid noise-free problems, 4 to 6 matches: the true pose when accepted (every one of
@@ -809,6 +813,13 @@ def test_vmapped_solve_equals_solve_many():
     one = jax.tree.map(np.asarray, one)
     many = jax.tree.map(lambda x: x[rows], many)
     _check_solutions(one, jax.tree.map(lambda x: x[rows], s), "float64")
+    # Degenerate problems (points on a line, repeated or of no area): not accepted, and
+    # the status says why, one problem at a time as in the batch.
+    deg = np.isin(s["kind"][rows], [KIND[k] for k in DEGENERATE_SOLVE_KINDS])
+    assert np.count_nonzero(deg) >= 8
+    assert not np.any(one.accepted[deg])
+    S = jp.Status
+    assert np.all(np.isin(one.status[deg], [S.DEGENERATE_IMAGE, S.DEGENERATE_MODEL]))
     np.testing.assert_array_equal(one.accepted, many.accepted)
     # The same reason for every failure; an exact fit may be accepted at step 2 by one and
     # step 4 by the other (its error is rounding either way).
