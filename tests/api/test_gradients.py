@@ -1,5 +1,5 @@
-"""Gradients of `jaxpose.solve`: exact (implicit function theorem at the Eq. 8 optimum),
-forward and reverse mode alike, and never NaN.
+"""Gradients of `jaxpose.solve` (in its batch-first form `solve_many`): exact (implicit
+function theorem at the Eq. 8 optimum), forward and reverse mode alike, and never NaN.
 
 The reference is a five-point central difference of the WHOLE solve (every problem
 re-solved from scratch at each of the four perturbed inputs, triplet choice and all),
@@ -10,10 +10,11 @@ of the difference over the max-norm of the derivative, separately for the rotati
 (`R`, 9 entries) and the translation block (`t`, 3 entries): tiny entries are judged at
 the scale of their block, not on their own.
 
-One compiled function per method and dtype serves every test for the Jacobians (the
-vmapped `solve`), and one per method for the re-solves (`solve_many`, the batch-first
-form of the same solve): problems are padded to `N_MAX` matches with a mask (n = 4 to 7)
-and evaluated in chunks of `CHUNK` problems.
+One compiled function per method and dtype (`_evaluator`: `solve_many`, its outputs
+and their Jacobians) serves every test, for the Jacobians and for the re-solves alike:
+problems are padded to `N_MAX` matches with a mask (n = 4 to 7) and evaluated in chunks
+of `CHUNK` problems. (`vmap(solve)` gives the same answers and derivatives, computed one
+problem at a time: `test_api.py`, `test_fuzz.py`.)
 """
 
 from __future__ import annotations
@@ -98,57 +99,52 @@ def _vector(sol):
     return jnp.concatenate([sol.pose.R.ravel(), sol.pose.t, rv, extra])
 
 
-def _outputs(method, k, E, M, I, mask):
-    """`_vector` of `solve`'s answer, and the Solution."""
-    sol = jp.solve(_K(k) @ E, M, I, mask, method=method)
-    return _vector(sol), sol
-
-
 GROUPS = {"k": slice(0, 4), "E": slice(4, 16), "M": slice(16, 37), "I": slice(37, 51)}
+
+
+def _solve_batch(method, k, E, M, I, mask):
+    """`solve_many` of a batch given as `(k, E, M, I, mask)`, and `_vector` of each
+    answer."""
+    sol = jp.solve_many(jax.vmap(_K)(k) @ E, M, I, mask, method=method)
+    return jax.vmap(_vector)(sol), sol
 
 
 @functools.cache
 def _evaluator(method: str):
-    """Compiled, vmapped `(k, E, M, I, mask) -> (outputs (17,), Solution, J_fwd, J_rev)`:
-    the Jacobians (17, 51) of the outputs w.r.t. the flattened `(k, E, M, I)` (columns in
-    `GROUPS`), in forward mode (`jvp` of every input direction, as `jax.jacfwd`) and in
-    reverse mode (its transpose, `vjp` of every output, as `jax.jacrev`), from one
-    linearisation so that the solver is traced and compiled once."""
-
-    def one(k, E, M, I, mask):
-        x, unravel = ravel_pytree((k, E, M, I))
-        y, f_jvp, sol = jax.linearize(
-            lambda x: _outputs(method, *unravel(x), mask), x, has_aux=True
-        )
-        f_vjp = jax.linear_transpose(f_jvp, x)
-        fwd = jax.vmap(f_jvp, out_axes=1)(jnp.eye(x.size, dtype=x.dtype))
-        rev = jax.vmap(lambda c: f_vjp(c)[0])(jnp.eye(y.size, dtype=y.dtype))
-        return y, sol, fwd, rev
-
-    return jax.jit(jax.vmap(one))
-
-
-@functools.cache
-def _values(method: str):
-    """Compiled `(k, E, M, I, mask) -> (outputs (B, 17), Solution)` of a batch by
-    `solve_many` (the batch-first `vmap(solve)`: the same answers, the whole algorithm
-    run only where a problem needs it): the re-solves of the central differences."""
+    """Compiled `(k, E, M, I, mask) -> (outputs (B, 17), Solution, J_fwd, J_rev)` of a
+    batch: the Jacobians (B, 17, 51) of each problem's outputs w.r.t. its flattened
+    `(k, E, M, I)` (columns in `GROUPS`), in forward mode (`jvp` of every input direction,
+    as `jax.jacfwd`) and in reverse mode (its transpose, `vjp` of every output, as
+    `jax.jacrev`), from one linearisation of the batch-first `solve_many`, so that the
+    solver is traced and compiled once. The problems are independent (the batch's
+    Jacobian is block-diagonal): one direction given to every problem at once gives each
+    problem's column."""
 
     def many(k, E, M, I, mask):
-        sol = jp.solve_many(jax.vmap(_K)(k) @ E, M, I, mask, method=method)
-        return jax.vmap(_vector)(sol), sol
+        x = jax.vmap(lambda *a: ravel_pytree(a)[0])(k, E, M, I)  # (B, 51)
+        _, unravel = ravel_pytree((k[0], E[0], M[0], I[0]))
+        y, f_jvp, sol = jax.linearize(
+            lambda x: _solve_batch(method, *jax.vmap(unravel)(x), mask), x, has_aux=True
+        )
+        f_vjp = jax.linear_transpose(f_jvp, x)
+        fwd = jax.vmap(lambda e: f_jvp(jnp.broadcast_to(e, x.shape)), out_axes=2)(
+            jnp.eye(x.shape[1], dtype=x.dtype)
+        )
+        rev = jax.vmap(lambda c: f_vjp(jnp.broadcast_to(c, y.shape))[0], out_axes=1)(
+            jnp.eye(y.shape[1], dtype=y.dtype)
+        )
+        return y, sol, fwd, rev
 
     return jax.jit(many)
 
 
-def evaluate(method: str, batch: Batch, derivative: bool = True):
-    """`_evaluator(method)` (`derivative`) or `_values(method)` over `batch` in chunks of
-    CHUNK problems (padded by repetition, so that every call has the same shapes and
-    reuses one compilation)."""
+def evaluate(method: str, batch: Batch):
+    """`_evaluator(method)` over `batch` in chunks of CHUNK problems (padded by
+    repetition, so that every call has the same shapes and reuses one compilation)."""
     B = batch.k.shape[0]
     size = -(-B // CHUNK) * CHUNK
     padded = [np.concatenate([x, np.repeat(x[:1], size - B, axis=0)]) for x in batch]
-    fn = _evaluator(method) if derivative else _values(method)
+    fn = _evaluator(method)
     parts = [fn(*(jnp.asarray(x[i : i + CHUNK]) for x in padded)) for i in range(0, size, CHUNK)]
     return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:B], *parts)
 
@@ -176,9 +172,8 @@ def _relative(a, b, axes):
 def central_difference_errors(method, batch, d, h=STEP, base=None):
     """Five-point central difference of the full solve along `d`, against `J . d`.
 
-    The Jacobians are `vmap(solve)`'s (`evaluate`; `base`: its result for `batch`, when
-    already computed); for the mixed method the re-solves at the four shifted inputs are
-    `solve_many`'s.
+    The Jacobians and the re-solves at the four shifted inputs are `evaluate`'s (`base`:
+    its result for `batch`, when already computed).
 
     Returns `(errors, compared, J_fwd, J_rev)`: the relative errors (rotation and
     translation blocks, the worse of the two) of the problems whose base and perturbed
@@ -188,10 +183,7 @@ def central_difference_errors(method, batch, d, h=STEP, base=None):
     values, accepted = [], [sol0.accepted]
     for s in (2, 1, -1, -2):
         shifted = _shift(batch, d, s * h)
-        if method == "mixed":  # (the whole algorithm only for the problems that need it)
-            y, sol = evaluate(method, shifted, derivative=False)
-        else:
-            y, sol, _, _ = evaluate(method, shifted)
+        y, sol, _, _ = evaluate(method, shifted)
         values.append(y)
         accepted.append(sol.accepted)
     fd = (-values[0] + 8 * values[1] - 8 * values[2] + values[3]) / (12 * h)
