@@ -108,6 +108,12 @@ def print_speed(res: dict, console) -> None:
             f"{row['compile_s']:.1f} s, RMS {row['rms_px']:.4f} px; SQPnP + RefineLM "
             f"{row['sqpnp_lm_us']:.0f} us, RMS {row['sqpnp_lm_rms_px']:.4f} px"
         )
+        if "lean_opencv_loop_ms" in row:
+            console.print(
+                f"  side by side with the lean OpenCV loop ({row['lean_opencv_loop_ms']:.1f} "
+                f"ms): {row['vs_lean_opencv']:.1f}x; the first call after the loop (code "
+                f"and threads gone cold) {row['after_loop_ms']:.2f} ms"
+            )
     if res.get("batch"):
         b = Table(title="Batches: n = 16, 1 px, solve_pnp_batch (defaults) vs OpenCV loop")
         for col in ("B", "jaxpose", "per problem", "OpenCV loop", "ratio", "at optimum", "compile"):
