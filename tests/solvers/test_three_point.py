@@ -512,8 +512,8 @@ def test_three_point_gradients_finite_and_correct():
         per_slot = jnp.sum(out.R * W[None], axis=(-2, -1)) + out.t @ w
         return jnp.sum(jnp.where(out.valid, per_slot, 0.0))
 
-    # Eager (op-by-op) on purpose: compiling the reverse pass of the whole solver costs
-    # more than running it a few times.
+    # One compiled program (op by op, each operation would be compiled on its own: 2.5x
+    # slower).
     grad = jax.grad(objective, argnums=(0, 1, 2))
     cases = [
         (C, m, uv),
@@ -523,7 +523,7 @@ def test_three_point_gradients_finite_and_correct():
         (np.zeros((3, 4)), m, uv),  # zero camera
     ]
     stacked = (jnp.asarray(np.stack(x)) for x in zip(*cases, strict=True))
-    all_grads = jax.vmap(grad)(*stacked)
+    all_grads = jax.jit(jax.vmap(grad))(*stacked)
     for g in all_grads:
         assert np.isfinite(np.asarray(g)).all()
     grads = [g[0] for g in all_grads]
