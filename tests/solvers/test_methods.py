@@ -1,5 +1,7 @@
 """The linear and non-linear methods (and the residuals they minimise) against OpenCV."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -109,8 +111,10 @@ def test_methods_on_too_few_points_and_degenerate_data():
     mask = np.zeros(16, dtype=bool)
     mask[:2] = True
     obs = jp.observations(b.camera, b.model_points, b.image_points, mask)
-    lin = jp.solvers.linear(obs, jp.Pose(b.R, b.t))
-    nl = jp.solvers.nonlinear(obs, jp.Pose(b.R, b.t))
+    # compiled (op by op, each of the solvers' operations would be compiled on its own)
+    linear, nonlinear = jax.jit(jp.solvers.linear), jax.jit(jp.solvers.nonlinear)
+    lin = linear(obs, jp.Pose(b.R, b.t))
+    nl = nonlinear(obs, jp.Pose(b.R, b.t))
     assert int(lin.status) == jp.Status.TOO_FEW_POINTS
     assert int(nl.status) == jp.Status.TOO_FEW_POINTS
     for leaf in jax.tree.leaves((lin, nl)):
@@ -119,7 +123,7 @@ def test_methods_on_too_few_points_and_degenerate_data():
     obs = jp.observations(b.camera, b.model_points, b.image_points)
     centre = np.asarray(jp.geometry.camera_centre(b.camera))
     behind = jp.Pose(b.R, 2 * centre - b.t)
-    lin = jp.solvers.linear(obs, behind, iterations=1)
+    lin = jax.jit(functools.partial(jp.solvers.linear, iterations=1))(obs, behind)
     assert int(lin.status) != jp.Status.OK
     assert np.all(np.isfinite(lin.pose.t)) and np.isfinite(float(lin.error))
 
@@ -132,8 +136,8 @@ def test_float32_methods():
     rng = np.random.default_rng(2)
     R0, t0 = _perturbed(b.R, b.t, rng, 3.0, 0.02, 2000.0)
     start = jp.Pose(jnp.asarray(R0, jnp.float32), jnp.asarray(t0, jnp.float32))
-    lin = jp.solvers.linear(obs, start)
-    nl = jp.solvers.nonlinear(obs, start)
+    lin = jax.jit(jp.solvers.linear)(obs, start)
+    nl = jax.jit(jp.solvers.nonlinear)(obs, start)
     R_ref, t_ref = opencv_optimum(b)
     e_ref = rms_px(b.camera, R_ref, t_ref, b.model_points, b.image_points)
     assert lin.pose.R.dtype == jnp.float32 and nl.pose.t.dtype == jnp.float32
