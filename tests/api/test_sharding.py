@@ -125,20 +125,25 @@ def test_sharded_and_chunked_equal_single_device(tmp_path):
 
 @pytest.mark.slow
 def test_sharded_mixed_equals_single_device(tmp_path):
-    """The default mixed method, 8 devices in chunks of 16 versus one device in one call."""
+    """The default mixed method, 8 devices in chunks of 16 versus one device in one call.
+
+    Every one of these problems is settled by the best roots (the first program): the
+    fallback's program runs through the same `run_batched` (its sharding and chunking are
+    the three-point method's, checked above on a failing problem), and compiling it
+    twice more here would cost half a minute."""
     code = (
         _SETUP
         + """
-    B = 20
+    rows = slice(6, 26)  # after the collinear problem
     for name, kw in (("one", dict(devices=1)), ("sharded", dict(chunk_size=16))):
-        ok, r, t = jp.solve_pnp_batch(obj[:B], img[:B], K, **kw)
+        ok, r, t = jp.solve_pnp_batch(obj[rows], img[rows], K, **kw)
         out.update({name + "_ok": ok, name + "_rvecs": r, name + "_tvecs": t})
     np.savez(os.environ["OUT"], **out)
     """
     )
     out = _run_child(code, tmp_path)
     _assert_same(out, "one", ["sharded"], ["ok", "rvecs", "tvecs"])
-    assert not out["one_ok"][5] and np.sum(out["one_ok"]) == 19
+    assert np.all(out["one_ok"]) and out["one_ok"].shape == (20,)
 
 
 # --------------------------------------------------------------------------- one device
