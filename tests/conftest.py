@@ -38,16 +38,26 @@ def rng():
     return np.random.default_rng(0)
 
 
-# The slowest files first (compile-bound; measured on 2 cores: 160-380 s each). With
-# `--dist loadfile` the workers take files in this order, so a long file cannot be left
-# to run alone at the end while the other worker idles.
+# The slowest files first (compile-bound; measured on 2 cores: 30-140 s each). With
+# `--dist loadfile --no-loadscope-reorder` (the Makefile's) the workers take files in
+# this order, each taking the next when it is free (longest first), so a long file is
+# not left to run alone at the end while the other worker idles. (xdist's default
+# reorders files by their number of tests instead.)
 SLOW_FIRST = (
     "test_gradients.py",
-    "test_api.py",
     "test_fuzz.py",
+    "test_best.py",
+    "test_api.py",
+    "test_programs.py",
     "test_mixed.py",
+    "test_kernel_p3p.py",
     "test_sharding.py",
-    "test_batch_first.py",
+    "test_recognition.py",
+    "test_kernel_linear.py",
+    "test_mixed_planar.py",
+    "differentiable_pose.ipynb",
+    "test_rerun.py",
+    "test_cli_warmup.py",
 )
 
 
