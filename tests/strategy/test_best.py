@@ -29,12 +29,10 @@ def _problems(kind: str, n: int, B: int, noise: float, seed: int):
 
 
 @functools.cache
-def _many(refine, threshold=None):
-    """`solve_many` with these options, values only (`derivative=False`: the answers are
+def _many(refine):
+    """`solve_many` with this `refine`, values only (`derivative=False`: the answers are
     compared, not their derivatives; a smaller program to compile)."""
-    return jax.jit(
-        lambda C, M, I: jp.solve_many(C, M, I, refine=refine, threshold=threshold, derivative=False)
-    )
+    return jax.jit(lambda C, M, I: jp.solve_many(C, M, I, refine=refine, derivative=False))
 
 
 def test_best_roots_reach_the_answer_of_every_triplet():
@@ -51,17 +49,50 @@ def test_best_roots_reach_the_answer_of_every_triplet():
         assert jp.Status.is_success(q) == jp.Status.is_success(f)
 
 
+def _collinear_spread(B: int, seed: int, noise: float = 0.5):
+    """`B` problems of 7 matches (OpenCV's convention, `C = K [I | 0]`) whose four
+    matches farthest apart in the image (`spread_matches`) lie on one line: four points
+    on a 3D line, the other three off it near its ends."""
+    rng = np.random.default_rng(seed)
+    K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
+    C, M, I = [], [], []
+    for _ in range(B):
+        d = rng.normal(size=3) * [1, 1, 0.15]
+        d *= 1.8 / np.linalg.norm(d)
+        e = rng.normal(size=(3, 3))
+        e -= np.outer(e @ d, d) / (d @ d)  # perpendicular to the line
+        e *= 0.25 / np.linalg.norm(e, axis=1, keepdims=True)
+        centre = np.array([0.0, 0.0, 6.0])
+        line = [centre + u * d for u in (-1.0, 0.0, 0.5, 1.0)]
+        off = [centre + 0.9 * d + e[0], centre - 0.9 * d + e[1], centre + 0.85 * d + e[2]]
+        pc = np.array(line + off)  # camera frame
+        R = jp.geometry.rotvec_to_matrix(rng.normal(size=3))
+        t = rng.normal(size=3)
+        M.append((pc - t) @ np.asarray(R))  # pc = R m + t
+        uv = pc[:, :2] / pc[:, 2:] * 800.0 + [320, 240]
+        I.append(uv + rng.normal(scale=noise, size=uv.shape))
+        C.append(np.hstack([K, np.zeros((3, 1))]))
+    return np.stack(C), np.stack(M), np.stack(I)
+
+
 def test_fallback_runs_the_whole_mixed_algorithm():
-    """With a threshold no refined root meets, every problem falls back, in passes of
-    `fallback_slots(B)` problems: the outcome is the whole mixed algorithm's."""
-    C, M, I = _problems("ordinary", 6, 5, noise=2.0, seed=4)
-    assert fallback_slots(5) == 1  # five passes
-    quick, full = _many(4, 1e-3)(C, M, I), _many(None, 1e-3)(C, M, I)
+    """Where the best roots give nothing (the spread matches are collinear: every one of
+    their triplets is degenerate), every problem falls back, in passes of
+    `fallback_slots(B)` problems: the outcome is the whole mixed algorithm's, which finds
+    the pose from the other triplets. (The programs of the test above: same shapes.)"""
+    C, M, I = _collinear_spread(12, seed=4)
+    chosen = np.asarray(spread_matches(jnp.asarray(I), jnp.ones((12, 7), bool), 4))
+    assert np.all(np.sort(chosen, axis=1) == [0, 1, 2, 3])  # the line's four
+    assert fallback_slots(12) == 1  # twelve passes
+    quick, full = _many(4)(C, M, I), _many(None)(C, M, I)
+    assert np.all(np.asarray(full.accepted))
+    # every answer comes from a triplet the best roots never tried (one off the line)
+    assert np.all(np.max(np.asarray(quick.triplet), axis=1) >= 4)
     np.testing.assert_array_equal(quick.status, full.status)
     np.testing.assert_array_equal(quick.accepted, full.accepted)
-    # (No pose is accepted: the answer is the lowest error of many triplets that end at
-    # one pose, equal to rounding: which of them is not compared.)
+    np.testing.assert_array_equal(quick.triplet, full.triplet)
     np.testing.assert_allclose(quick.error, full.error, rtol=1e-9)
+    np.testing.assert_allclose(quick.pose.R, full.pose.R, atol=1e-9)
     np.testing.assert_allclose(quick.pose.t, full.pose.t, rtol=1e-6, atol=1e-6)
 
 
