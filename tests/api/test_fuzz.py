@@ -806,11 +806,24 @@ def test_solve(dtype):
 
 def test_vmapped_solve_equals_solve_many():
     """`jax.vmap(solve)` (each problem its own mixed algorithm) gives the batch-first
-    path's answers on hostile input too."""
+    path's answers on hostile input too; and `solve` is jit-, vmap- and grad-friendly
+    there: one compiled `jit(vmap(grad))` gives both the answers and the gradient of each
+    translation with respect to the pixels, finite wherever the input is."""
+
+    def loss(camera, model, image, mask):
+        sol = jp.solve(camera, model, image, mask)
+        return jnp.sum(sol.pose.t), sol
+
     s, args, many = _solved("float64")
     rows = slice(0, VMAP_BATCH)
-    one = jax.jit(jax.vmap(jp.solve))(*(a[rows] for a in args), s["mask"][rows])
-    one = jax.tree.map(np.asarray, one)
+    inputs = [a[rows] for a in args]
+    grad, one = jax.jit(jax.vmap(jax.grad(loss, argnums=2, has_aux=True)))(*inputs, s["mask"][rows])
+    one, grad = jax.tree.map(np.asarray, one), np.asarray(grad)
+    finite = np.all([np.isfinite(np.asarray(a)).reshape(len(a), -1).all(1) for a in inputs], 0)
+    assert grad.shape == (VMAP_BATCH, N_POINTS, 2)
+    assert np.all(np.isfinite(grad[finite]))
+    # an accepted pose moves with its pixels (those of the used matches)
+    assert all(np.any(grad[b] != 0) for b in np.flatnonzero(one.accepted))
     many = jax.tree.map(lambda x: x[rows], many)
     _check_solutions(one, jax.tree.map(lambda x: x[rows], s), "float64")
     # Degenerate problems (points on a line, repeated or of no area): not accepted, and
