@@ -102,7 +102,7 @@ class Sizes:
     memory: bool = True
 
 
-FULL = Sizes(repeat=50, batch=(1, 10, 100, 1000, 10_000), batch_repeat=3, p3p=100_000, linear=8000)
+FULL = Sizes(repeat=50, batch=(1, 10, 100, 1000, 10_000), batch_repeat=7, p3p=100_000, linear=8000)
 QUICK = Sizes(repeat=20, batch=(100, 1000), batch_repeat=3, p3p=20_000, linear=8000)
 
 
@@ -359,7 +359,7 @@ def batch(sizes: Sequence[int], repeat: int, seed: int = 1) -> list[dict]:
     rows = []
     for B in sizes:
         obj, img = obj_all[:B], img_all[:B]
-        call = timeit(jp.solve_pnp_batch, obj, img, K, warmup=2, repeat=repeat if B <= 1000 else 2)
+        call = timeit(jp.solve_pnp_batch, obj, img, K, warmup=2, repeat=repeat)
         ok, rvecs, tvecs = call.result
         err = np.array([_rms(obj[i], img[i], K, rvecs[i], tvecs[i]) for i in range(B)])
         rows.append(
