@@ -35,8 +35,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import statistics
-import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -52,6 +50,7 @@ from benchmarks._harness import (
     bench_problem,
     opencv_block,
     random_rotations,
+    side_by_side,
     spawn,
     timeit,
     verdict,
@@ -269,31 +268,6 @@ def _latency_row(obj, img, K, repeat: int) -> dict:
         "ok": bool(ok),
         "rms_px": _rms(obj, img, K, rvec, tvec),
         "sqpnp_lm_rms_px": _rms(obj, img, K, rv, tv),
-    }
-
-
-def side_by_side(ours, peer, rounds: int, calls: int) -> dict:
-    """`ours` (a fast call) and `peer` (a slow one) timed in alternating rounds, so that
-    a change of load on a shared machine weighs on both alike: each round times `calls`
-    back-to-back calls of `ours`, then one of `peer`. Returns the least wall time of each
-    (ms), and the median over rounds of `ours`' first call of a round (`after_peer_ms`:
-    the call that follows the peer's, when `ours`' code and threads have gone cold)."""
-    best, first, peer_best = math.inf, [], math.inf
-    for _ in range(rounds):
-        for i in range(calls):
-            t0 = time.perf_counter()
-            ours()
-            dt = time.perf_counter() - t0
-            best = min(best, dt)
-            if i == 0:
-                first.append(dt)
-        t0 = time.perf_counter()
-        peer()
-        peer_best = min(peer_best, time.perf_counter() - t0)
-    return {
-        "ms": 1e3 * best,
-        "peer_ms": 1e3 * peer_best,
-        "after_peer_ms": 1e3 * statistics.median(first),
     }
 
 

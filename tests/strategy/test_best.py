@@ -54,8 +54,8 @@ def _collinear_spread(B: int, seed: int, noise: float = 0.5):
     matches farthest apart in the image (`spread_matches`) lie on one line: four points
     on a 3D line, the other three off it near its ends."""
     rng = np.random.default_rng(seed)
-    K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
-    C, M, I = [], [], []
+    C = np.asarray(jp.camera_matrix(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])))
+    M, I = [], []
     for _ in range(B):
         d = rng.normal(size=3) * [1, 1, 0.15]
         d *= 1.8 / np.linalg.norm(d)
@@ -69,10 +69,9 @@ def _collinear_spread(B: int, seed: int, noise: float = 0.5):
         R = jp.geometry.rotvec_to_matrix(rng.normal(size=3))
         t = rng.normal(size=3)
         M.append((pc - t) @ np.asarray(R))  # pc = R m + t
-        uv = pc[:, :2] / pc[:, 2:] * 800.0 + [320, 240]
+        uv = np.asarray(jp.project(C, pc))
         I.append(uv + rng.normal(scale=noise, size=uv.shape))
-        C.append(np.hstack([K, np.zeros((3, 1))]))
-    return np.stack(C), np.stack(M), np.stack(I)
+    return np.broadcast_to(C, (B, 3, 4)), np.stack(M), np.stack(I)
 
 
 def test_fallback_runs_the_whole_mixed_algorithm():
