@@ -54,9 +54,11 @@ def polish(
     **Returns:** the polished `Pose`.
     """
     sobs = jax.lax.stop_gradient(obs)
-    start = newton_step(sobs, jax.lax.stop_gradient(pose), accepted, derivative)
-    target = obs if derivative else sobs
-    return newton_step(target, jax.lax.stop_gradient(start), accepted, derivative)
+    pose = jax.lax.stop_gradient(pose)
+    if not derivative:  # one step's code, run twice
+        return jax.lax.fori_loop(0, 2, lambda _, p: newton_step(sobs, p, accepted, False), pose)
+    start = newton_step(sobs, pose, accepted)
+    return newton_step(obs, jax.lax.stop_gradient(start), accepted)
 
 
 def newton_step(

@@ -253,24 +253,48 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     """Steps 2-4 from `start` for problem `problem` of the batch `obs`, with threshold
     `thr[problem]`, `iterations` linear steps per run, and Levenberg-Marquardt with
     `steps` iterations at most (`lm_bound`: its static bound). Returns `(pose, error,
-    status)`."""
+    status)`.
+
+    The two linear runs (from `start`, then from LM's pose) are the two trips of one
+    loop, Levenberg-Marquardt running after the first: one linear kernel in the compiled
+    program instead of two (the trip count is not batched, so under `vmap` the `cond`
+    stays a branch)."""
     o = jax.tree.map(lambda x: x[problem], obs)
     th = thr[problem]
     m = matches_from_observations(o)
-    res = _linear_block(mat_from_array(start.R), vec_from_array(start.t), m, iterations)
     start_error = pixel_error_kernel(mat_from_array(start.R), vec_from_array(start.t), m)
-    better = (res.error < start_error) & (res.status != Status.NOT_FINITE)
+
+    def lm(res: LinearResult):
+        better = (res.error < start_error) & (res.status != Status.NOT_FINITE)
+        lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
+        nl = nonlinear(o, lm_start, max_steps=lm_bound, step_limit=steps)
+        return nl.pose, nl.error, nl.status.astype(jnp.int32)
+
+    def trip(i, carry):
+        runs, nl = carry
+        pose = jax.tree.map(lambda a, b: jnp.where(i == 0, a, b), start, nl[0])
+        run = _linear_block(mat_from_array(pose.R), vec_from_array(pose.t), m, iterations)
+        runs = jax.tree.map(lambda r, x: r.at[i].set(x), runs, run)
+        return runs, jax.lax.cond(i == 0, lm, lambda _: nl, run)
+
+    zero = jnp.zeros((), start.t.dtype)
+    none = jnp.zeros((), jnp.int32)
+    nothing = Pose(jnp.zeros_like(start.R), jnp.zeros_like(start.t))
+    runs = jax.tree.map(
+        lambda x: jnp.zeros((2, *x.shape), x.dtype), LinearResult(nothing, zero, zero, none)
+    )
+    runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(
+        0, 2, trip, (runs, (nothing, zero, none))
+    )
+    res, again = (jax.tree.map(lambda x, i=i: x[i], runs) for i in (0, 1))
     accepted = (res.status == Status.OK) & (res.error < th)
-    lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
-    nl = nonlinear(o, lm_start, max_steps=lm_bound, step_limit=steps)
-    again = _linear_block(mat_from_array(nl.pose.R), vec_from_array(nl.pose.t), m, iterations)
-    lm_ok = nl.status == Status.OK
+    lm_ok = nl_status == Status.OK
     # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
     # converged (stationary) pose stands: Gauss-Newton can be repelled from an optimum
     # whose residual is large next to its curvature (few matches, planar scenes).
     use_nl = lm_ok & (again.status != Status.OK)
-    pose4 = jax.tree.map(lambda a, b: jnp.where(use_nl, a, b), nl.pose, again.pose)
-    error4 = jnp.where(use_nl, nl.error, again.error)
+    pose4 = jax.tree.map(lambda a, b: jnp.where(use_nl, a, b), nl_pose, again.pose)
+    error4 = jnp.where(use_nl, nl_error, again.error)
     accepted4 = lm_ok & (error4 < th)
     status = jnp.select(
         [accepted, accepted4, ~lm_ok],
@@ -282,10 +306,10 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
         Status.REJECTED,
     )
     # Not accepted: the lowest-error pose reached (linear run, LM, linear after LM).
-    errors = jnp.stack([res.error, nl.error, again.error])
+    errors = jnp.stack([res.error, nl_error, again.error])
     last = jnp.argmin(errors)
     pick = jnp.where(accepted, 0, jnp.where(accepted4, 3, last))
-    poses = [res.pose, nl.pose, again.pose, pose4]
+    poses = [res.pose, nl_pose, again.pose, pose4]
     pose = Pose(jnp.stack([q.R for q in poses])[pick], jnp.stack([q.t for q in poses])[pick])
     error = jnp.concatenate([errors, error4[None]])[pick]
     return pose, error, status.astype(jnp.int32)

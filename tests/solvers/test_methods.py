@@ -171,6 +171,42 @@ def test_residual_jacobians_match_central_differences(residual):
     np.testing.assert_allclose(fwd, fd, rtol=1e-6, atol=1e-6 * np.abs(fd).max())
 
 
+def test_compact_residual_has_the_residuals_derivatives():
+    """Levenberg-Marquardt's residual with its Jacobian formed once (`_compact_residual`):
+    same values, and the same derivatives in the chart coordinates and in the problem,
+    forward and reverse, as the plain residual."""
+    from jaxpose.solvers._chart import chart_at
+    from jaxpose.solvers._nonlinear import _compact_residual, _residual
+
+    rng = np.random.default_rng(9)
+    s = jp.apps.random_scene(rng, 8, noise=0.5)
+    obs = jp.observations(s.camera, s.model_points, s.image_points)
+    init = jp.geometry.Pose(jnp.asarray(s.R), jnp.asarray(s.t))
+    base = jp.geometry.transform(init, obs.model)
+    args = (obs, chart_at(init, obs, base), base)
+    y = jnp.asarray(1e-2 * rng.normal(size=6))
+    image_dot = jnp.asarray(rng.normal(size=obs.image.shape))
+
+    def with_image(f):
+        return lambda y, image: f(y, (args[0]._replace(image=image), *args[1:]))
+
+    for f in (jax.jacfwd, jax.jacrev):
+        np.testing.assert_allclose(
+            f(_compact_residual)(y, args), f(_residual)(y, args), rtol=1e-12, atol=1e-12
+        )
+    y_dot = jnp.asarray(rng.normal(size=6))
+    got = jax.jvp(with_image(_compact_residual), (y, obs.image), (y_dot, image_dot))
+    want = jax.jvp(with_image(_residual), (y, obs.image), (y_dot, image_dot))
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        jax.jacrev(with_image(_compact_residual), argnums=1)(y, obs.image),
+        jax.jacrev(with_image(_residual), argnums=1)(y, obs.image),
+        rtol=1e-12,
+        atol=1e-12,
+    )
+
+
 def test_residuals_vanish_at_the_true_pose():
     b = jp.default_bench(noise=0.0)
     obs = jp.observations(b.camera, b.model_points, b.image_points)
