@@ -53,12 +53,12 @@ def polish(
 
     **Returns:** the polished `Pose`.
     """
-    sobs = jax.lax.stop_gradient(obs)
-    pose = jax.lax.stop_gradient(pose)
-    if not derivative:  # one step's code, run twice
-        return jax.lax.fori_loop(0, 2, lambda _, p: newton_step(sobs, p, accepted, False), pose)
-    start = newton_step(sobs, pose, accepted)
-    return newton_step(obs, jax.lax.stop_gradient(start), accepted)
+    target = obs if derivative else jax.lax.stop_gradient(obs)
+
+    def step(_, pose):  # one step's code, run twice; the last one's derivative stands
+        return newton_step(target, jax.lax.stop_gradient(pose), accepted, derivative)
+
+    return jax.lax.fori_loop(0, 2, step, jax.lax.stop_gradient(pose))
 
 
 def newton_step(
