@@ -3,7 +3,8 @@ which hypotheses of a matcher are right.
 
 A hypothesis is a model from the database plus 2D-3D matches of its vertices. The
 mixed algorithm (`jaxpose.solve`) recovers the pose of every hypothesis at once (one
-`vmap` over hypotheses padded to the same number of matches, with masks), and an
+batch, `jaxpose.solve_many`, of hypotheses padded to the same number of matches, with
+masks), and an
 absolute rule accepts or rejects each one. With `N` matches, image noise of standard
 deviation $\sigma$ px per coordinate and a confidence $c$ (default 0.999):
 
@@ -36,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..api._solve import solve
+from ..api._solve import solve, solve_many
 from ..geometry._pose import Pose, observations, transform
 from ..geometry._validate import as_camera, as_points, no_type_check
 from ..solvers._residuals import pixel_residuals
@@ -51,6 +52,10 @@ __all__ = [
     "verify",
     "verify_hypotheses",
 ]
+
+
+# Levenberg-Marquardt's budget of triplets per hypothesis (`Options.nonlinear_budget`).
+NONLINEAR_BUDGET = 32
 
 
 def acceptance_thresholds(count, noise, confidence: float = 0.999):
@@ -118,7 +123,7 @@ def verify(
     confidence: float = 0.999,
     min_consensus: float = 1.0,
     max_triplets: int | None = 2000,
-    nonlinear_budget: int | None = 32,
+    nonlinear_budget: int | None = NONLINEAR_BUDGET,
 ) -> Verification:
     """Verify one hypothesis with the mixed algorithm (JAX-native, one problem).
 
@@ -137,7 +142,6 @@ def verify(
     **Returns:** a `Verification` (see the module docstring for the rule).
     """
     obs = observations(camera, model, image, mask)
-    dtype = obs.camera.dtype
     sol = solve(
         obs.camera,
         obs.model,
@@ -146,6 +150,13 @@ def verify(
         max_triplets=max_triplets,
         nonlinear_budget=nonlinear_budget,
     )
+    return _judge(obs, sol, noise, confidence, min_consensus)
+
+
+def _judge(obs, sol, noise, confidence: float, min_consensus: float) -> Verification:
+    """The verification rule (module docstring) applied to the answer `sol` of the
+    problem `obs` (one hypothesis)."""
+    dtype = obs.camera.dtype
     pose = jax.lax.stop_gradient(sol.pose)
     count = jnp.sum(obs.mask)
     noise = jnp.asarray(noise, dtype)
@@ -250,8 +261,8 @@ def verify_hypotheses(
 ) -> list[Verdict]:
     """Verify a list of recognition hypotheses at once and rank them (float64).
 
-    All hypotheses are padded to the largest number of matches and solved in one
-    compiled, `vmap`-ed call of `verify`.
+    All hypotheses are padded to the largest number of matches and verified in one
+    compiled call: the values of `jax.vmap(verify)`, solved batch-first (`solve_many`).
 
     **Arguments:**
     - `camera`: the 3x4 projection matrix `C` (world frame).
@@ -319,16 +330,18 @@ def verify_hypotheses(
 
 @functools.partial(jax.jit, static_argnames=("confidence", "min_consensus", "max_triplets"))
 def _verify_batch(camera, model, image, mask, noise, confidence, min_consensus, max_triplets):
-    def one(model, image, mask):
-        return verify(
-            camera,
-            model,
-            image,
-            mask,
-            noise=noise,
-            confidence=confidence,
-            min_consensus=min_consensus,
-            max_triplets=max_triplets,
-        )
-
-    return jax.vmap(one)(model, image, mask)
+    """`jax.vmap(verify)`'s values, the hypotheses solved batch-first (`solve_many`:
+    the fallback runs only for those that need it) and without derivatives (the
+    verdict carries none)."""
+    sol = solve_many(
+        camera,
+        model,
+        image,
+        mask,
+        max_triplets=max_triplets,
+        nonlinear_budget=NONLINEAR_BUDGET,
+        derivative=False,
+    )
+    obs = jax.vmap(observations, in_axes=(None, 0, 0, 0))(camera, model, image, mask)
+    judge = functools.partial(_judge, confidence=confidence, min_consensus=min_consensus)
+    return jax.vmap(judge, in_axes=(0, 0, None))(obs, sol, noise)
