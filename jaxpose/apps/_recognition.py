@@ -149,6 +149,7 @@ def verify(
         obs.mask,
         max_triplets=max_triplets,
         nonlinear_budget=nonlinear_budget,
+        derivative=False,  # the verdict carries none
     )
     return _judge(obs, sol, noise, confidence, min_consensus)
 
