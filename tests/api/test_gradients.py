@@ -12,10 +12,10 @@ the scale of their block, not on their own.
 
 One compiled function per method and dtype (`_evaluator`: `solve_many`, its outputs
 and their Jacobians) serves every test (float32: without the fallback, see
-`test_float32_gradients_are_finite_and_close_to_float64`), for the Jacobians and for the re-solves alike:
-problems are padded to `N_MAX` matches with a mask (n = 4 to 7) and evaluated in chunks
-of `CHUNK` problems. (`vmap(solve)` gives the same answers and derivatives, computed one
-problem at a time: `test_api.py`, `test_fuzz.py`.)
+`test_float32_gradients_are_finite_and_close_to_float64`), for the Jacobians and for the
+re-solves alike: problems are padded to `N_MAX` matches with a mask (n = 4 to 7) and
+evaluated in chunks of `CHUNK` problems. (`vmap(solve)` gives the same answers and
+derivatives, computed one problem at a time: `test_api.py`, `test_fuzz.py`.)
 """
 
 from __future__ import annotations
