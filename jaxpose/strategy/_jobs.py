@@ -76,7 +76,7 @@ class JobLoop(NamedTuple):
 
 
 def _work(fn: Callable, k: int, state: JobLoop) -> JobLoop:
-    """One pass: the `k` remaining jobs of lowest priority run as one vmapped batch."""
+    """One pass: the `k` remaining jobs of lowest priority run as one batch."""
     jobs = state.jobs
     big = jnp.finfo(jobs.priority.dtype).max
     remaining = jobs.need & ~jobs.done
@@ -86,7 +86,7 @@ def _work(fn: Callable, k: int, state: JobLoop) -> JobLoop:
     key = -jnp.clip(jnp.where(jnp.isnan(jobs.priority), big, jobs.priority), -big, big)
     _, slots = jax.lax.top_k(jnp.where(remaining, key, -jnp.inf), k)
     take = remaining[slots]
-    out = jax.vmap(fn)(*jax.tree.map(lambda x: x[slots], jobs.args))
+    out = fn(*jax.tree.map(lambda x: x[slots], jobs.args))
 
     def put(r, o):
         keep = take.reshape(-1, *([1] * (o.ndim - 1)))
@@ -103,8 +103,9 @@ def _next_phase(advance: Callable, state: JobLoop) -> JobLoop:
 
 
 def run_jobs(fn: Callable, jobs: Jobs, chunk: int, phases: int, advance: Callable, carry):
-    """Run `fn` (one job's arguments -> results) on every job that `need`s it, lowest
-    `priority` first, `chunk` jobs at a time in a fixed-size buffer, in `phases` phases.
+    """Run `fn` (a batch of jobs' arguments -> their results, batch-first: every leaf
+    with the jobs' leading axis) on every job that `need`s it, lowest `priority` first,
+    `chunk` jobs at a time in a fixed-size buffer, in `phases` phases.
 
     When no job of the current phase is left, `advance(phase, jobs, carry) -> (jobs,
     carry)` reads the results and sets the next phase's jobs (it runs once per phase, the

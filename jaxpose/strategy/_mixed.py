@@ -250,24 +250,28 @@ def thresholds(obs: Observations, lin: LinearResult, lin_ok, options: Options):
 
 
 def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: Pose, steps):
-    """Steps 2-4 from `start` for problem `problem` of the batch `obs`, with threshold
-    `thr[problem]`, `iterations` linear steps per run, and Levenberg-Marquardt with
-    `steps` iterations at most (`lm_bound`: its static bound). Returns `(pose, error,
-    status)`.
+    """Steps 2-4 for `K` jobs at once, batch-first: job `j` starts from `start[j]` on
+    problem `problem[j]` of the batch `obs`, with threshold `thr[problem[j]]`,
+    `iterations` linear steps per run, and Levenberg-Marquardt with `steps[j]`
+    iterations at most (`lm_bound`: its static bound). Returns `(pose, error, status)`,
+    each with the leading `K`.
 
-    The two linear runs (from `start`, then from LM's pose) are the two trips of one
-    loop, Levenberg-Marquardt running after the first: one linear kernel in the compiled
-    program instead of two (the trip count is not batched, so under `vmap` the `cond`
-    stays a branch)."""
+    The two linear runs (from the start, then from LM's pose) are the two trips of one
+    loop over the batch, Levenberg-Marquardt (`vmap`-ed) running after the first: one
+    linear kernel in the compiled program, and no `vmap` of the loops (which JAX would
+    trace again until it knows which of their values are batched)."""
     o = jax.tree.map(lambda x: x[problem], obs)
     th = thr[problem]
     m = matches_from_observations(o)
-    start_error = pixel_error_kernel(mat_from_array(start.R), vec_from_array(start.t), m)
+    R0, t0 = mat_from_array(start.R), vec_from_array(start.t)
+    start_error = pixel_error_kernel(R0, t0, m)
 
     def lm(res: LinearResult):
         better = (res.error < start_error) & (res.status != Status.NOT_FINITE)
-        lm_start = jax.tree.map(lambda a, b: jnp.where(better, a, b), res.pose, start)
-        nl = nonlinear(o, lm_start, max_steps=lm_bound, step_limit=steps)
+        lm_start = _where_pose(better, res.pose, start)
+        nl = jax.vmap(lambda o, p, k: nonlinear(o, p, max_steps=lm_bound, step_limit=k))(
+            o, lm_start, steps
+        )
         return nl.pose, nl.error, nl.status.astype(jnp.int32)
 
     def trip(i, carry):
@@ -277,14 +281,13 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
         runs = jax.tree.map(lambda r, x: r.at[i].set(x), runs, run)
         return runs, jax.lax.cond(i == 0, lm, lambda _: nl, run)
 
-    zero = jnp.zeros((), start.t.dtype)
-    none = jnp.zeros((), jnp.int32)
-    nothing = Pose(jnp.zeros_like(start.R), jnp.zeros_like(start.t))
+    zero = jnp.zeros_like(start_error)
+    none = jnp.zeros(zero.shape, jnp.int32)
     runs = jax.tree.map(
-        lambda x: jnp.zeros((2, *x.shape), x.dtype), LinearResult(nothing, zero, zero, none)
+        lambda x: jnp.zeros((2, *x.shape), x.dtype), LinearResult(start, zero, zero, none)
     )
     runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(
-        0, 2, trip, (runs, (nothing, zero, none))
+        0, 2, trip, (runs, (start, zero, none))
     )
     res, again = (jax.tree.map(lambda x, i=i: x[i], runs) for i in (0, 1))
     accepted = (res.status == Status.OK) & (res.error < th)
@@ -293,7 +296,7 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     # converged (stationary) pose stands: Gauss-Newton can be repelled from an optimum
     # whose residual is large next to its curvature (few matches, planar scenes).
     use_nl = lm_ok & (again.status != Status.OK)
-    pose4 = jax.tree.map(lambda a, b: jnp.where(use_nl, a, b), nl_pose, again.pose)
+    pose4 = _where_pose(use_nl, nl_pose, again.pose)
     error4 = jnp.where(use_nl, nl_error, again.error)
     accepted4 = lm_ok & (error4 < th)
     status = jnp.select(
@@ -306,13 +309,15 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
         Status.REJECTED,
     )
     # Not accepted: the lowest-error pose reached (linear run, LM, linear after LM).
-    errors = jnp.stack([res.error, nl_error, again.error])
-    last = jnp.argmin(errors)
+    errors = jnp.stack([res.error, nl_error, again.error, error4])  # (4, K)
+    last = jnp.argmin(errors[:3], axis=0)
     pick = jnp.where(accepted, 0, jnp.where(accepted4, 3, last))
     poses = [res.pose, nl_pose, again.pose, pose4]
-    pose = Pose(jnp.stack([q.R for q in poses])[pick], jnp.stack([q.t for q in poses])[pick])
-    error = jnp.concatenate([errors, error4[None]])[pick]
-    return pose, error, status.astype(jnp.int32)
+    rows = jnp.arange(pick.shape[0])
+    pose = Pose(
+        jnp.stack([q.R for q in poses])[pick, rows], jnp.stack([q.t for q in poses])[pick, rows]
+    )
+    return pose, errors[pick, rows], status.astype(jnp.int32)
 
 
 def set_jobs(jobs: Jobs, lo: int, need, priority, start: Pose) -> Jobs:
