@@ -282,13 +282,10 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
         return runs, jax.lax.cond(i == 0, lm, lambda _: nl, run)
 
     zero = jnp.zeros_like(start_error)
-    none = jnp.zeros(zero.shape, jnp.int32)
-    runs = jax.tree.map(
-        lambda x: jnp.zeros((2, *x.shape), x.dtype), LinearResult(start, zero, zero, none)
-    )
-    runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(
-        0, 2, trip, (runs, (start, zero, none))
-    )
+    none = zero.astype(jnp.int32)
+    nl = (start, zero, none)
+    runs = jax.tree.map(lambda x: jnp.stack([x, x]), LinearResult(start, zero, zero, none))
+    runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(0, 2, trip, (runs, nl))
     res, again = (jax.tree.map(lambda x, i=i: x[i], runs) for i in (0, 1))
     accepted = (res.status == Status.OK) & (res.error < th)
     lm_ok = nl_status == Status.OK
@@ -301,22 +298,16 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     accepted4 = lm_ok & (error4 < th)
     status = jnp.select(
         [accepted, accepted4, ~lm_ok],
-        [
-            Status.ACCEPTED_LINEAR,
-            Status.ACCEPTED_AFTER_NONLINEAR,
-            Status.NONLINEAR_NOT_CONVERGED,
-        ],
+        [Status.ACCEPTED_LINEAR, Status.ACCEPTED_AFTER_NONLINEAR, Status.NONLINEAR_NOT_CONVERGED],
         Status.REJECTED,
     )
     # Not accepted: the lowest-error pose reached (linear run, LM, linear after LM).
     errors = jnp.stack([res.error, nl_error, again.error, error4])  # (4, K)
     last = jnp.argmin(errors[:3], axis=0)
     pick = jnp.where(accepted, 0, jnp.where(accepted4, 3, last))
-    poses = [res.pose, nl_pose, again.pose, pose4]
+    poses = jax.tree.map(lambda *q: jnp.stack(q), res.pose, nl_pose, again.pose, pose4)
     rows = jnp.arange(pick.shape[0])
-    pose = Pose(
-        jnp.stack([q.R for q in poses])[pick, rows], jnp.stack([q.t for q in poses])[pick, rows]
-    )
+    pose = jax.tree.map(lambda x: x[pick, rows], poses)
     return pose, errors[pick, rows], status.astype(jnp.int32)
 
 
