@@ -19,15 +19,16 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/jaxpose reproduce --out results
 
-# pyright runs beside the test suite at the lowest priority: it takes a core only when a
-# test worker leaves one idle. Its report is printed after the tests; either failing
-# fails the target.
+# pyright and the strict docs build run beside the test suite at the lowest priority:
+# they take a core only when a test worker leaves one idle. Their reports are printed
+# after the tests; any of the three failing fails the target.
 test: $(STAMP)
 	$(BIN)/ruff check .
-	$(MKDOCS) build --strict --site-dir site
 	nice -n 19 $(BIN)/pyright > .pyright.log 2>&1 & pyright=$$!; \
+	nice -n 19 env $(MKDOCS) build --strict --site-dir site > .mkdocs.log 2>&1 & docs=$$!; \
 	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=40; \
-	status=$$?; wait $$pyright || status=1; cat .pyright.log; exit $$status
+	status=$$?; wait $$pyright || status=1; wait $$docs || status=1; \
+	cat .pyright.log .mkdocs.log; exit $$status
 
 docs: $(STAMP)
 	$(MKDOCS) build --strict --site-dir site
@@ -56,4 +57,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) results site docs/generated .pytest_cache .hypothesis .pyright.log
+	rm -rf $(VENV) results site docs/generated .pytest_cache .hypothesis .pyright.log .mkdocs.log
