@@ -57,6 +57,13 @@ def _residual(y, args):
     return pixel_residuals(world, obs).reshape(-1)
 
 
+def _value_and_jacobian(y, args):
+    """`_residual(y, args)` and its `(2n, 6)` Jacobian in `y`, traced once (the value is
+    the forward pass's primal)."""
+    J, r = jax.jacfwd(lambda y: (_residual(y, args),) * 2, has_aux=True)(y)
+    return r, J
+
+
 @jax.custom_jvp
 def _compact_residual(y, args):
     """`_residual` whose derivative is its Jacobian, formed once: the function handed to
@@ -75,7 +82,7 @@ def _compact_residual(y, args):
 def _compact_residual_jvp(primals, tangents):
     y, args = primals
     y_dot, args_dot = tangents
-    r, J = _residual(y, args), jax.jacfwd(_residual)(y, args)
+    r, J = _value_and_jacobian(y, args)
     dr = J @ _instantiate(y_dot)
     if not all(map(_is_zero, jax.tree.leaves(args_dot, is_leaf=_is_zero))):
         args_dot = jax.tree.map(_instantiate, args_dot, is_leaf=_is_zero)
@@ -159,8 +166,7 @@ def nonlinear(
     # (MINPACK's gtol test). optimistix tests termination only on accepted steps, and at
     # machine precision its trust region may reject every step and run out of steps
     # while sitting at the optimum; the gradient test sees through that.
-    r = _residual(y, args)
-    J = jax.jacfwd(_residual)(y, args)
+    r, J = _value_and_jacobian(y, args)
     cosine = jnp.abs(J.T @ r) / (jnp.linalg.norm(J, axis=0) * jnp.linalg.norm(r) + tiny)
     # A residual at rounding level (exact data) is a global optimum, where the cosine is
     # rounding noise: stationary too.

@@ -263,8 +263,7 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     o = jax.tree.map(lambda x: x[problem], obs)
     th = thr[problem]
     m = matches_from_observations(o)
-    R0, t0 = mat_from_array(start.R), vec_from_array(start.t)
-    start_error = pixel_error_kernel(R0, t0, m)
+    start_error = pixel_error_kernel(mat_from_array(start.R), vec_from_array(start.t), m)
 
     def lm(res: LinearResult):
         better = (res.error < start_error) & (res.status != Status.NOT_FINITE)
