@@ -254,7 +254,9 @@ def _on_planes(bases, indefinite, b):
     lam = scale(d, jnp.where(q > 0, jnp.sqrt(1 / jnp.where(q > 0, q, 1)), 0))
     flip = lam.x + lam.y + lam.z < 0
     lam = Vec3(*(jnp.where(flip, -c, c) for c in lam))
-    near = (disc < 0) & (-disc <= _NEAR * (g12 * g12 + jnp.abs(g11 * g22)))
+    # every real pair is `near` too (`_p3p._depths`: two copies of `disc`, one with a
+    # fused multiply-add, must not both drop a double root)
+    near = -disc <= _NEAR * (g12 * g12 + jnp.abs(g11 * g22))
     ok = _each(indefinite)
     return lam, (disc >= 0) & ok, near & ok
 

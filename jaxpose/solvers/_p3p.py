@@ -268,8 +268,12 @@ def _depths(y, x):
         lam = dirs * safe_sqrt(safe_div(1, q))[:, None]
         lam = jnp.where(jnp.sum(lam, axis=1, keepdims=True) < 0, -lam, lam)
         # A slightly negative discriminant is a real double root pushed off the real line
-        # by noise: keep its real part as an approximate solution.
-        near = (disc < 0) & (-disc <= _NEAR * (g12 * g12 + jnp.abs(g11 * g22)))
+        # by noise: keep its real part as an approximate solution. `near` holds every
+        # real pair too (the polish sorts them): XLA may compute `disc` once with a
+        # fused multiply-add and once without (it copies cheap expressions into each
+        # fusion that uses them), and a double root's `disc` is then `0` in one copy and
+        # `-ulp` in the other; tested on the sign in both masks, it fell through both.
+        near = -disc <= _NEAR * (g12 * g12 + jnp.abs(g11 * g22))
         return (
             lam,
             jnp.broadcast_to((disc >= 0) & indefinite, (2,)),
