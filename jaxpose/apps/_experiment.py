@@ -1,4 +1,4 @@
-"""The paper's experiment (SPEC 5; Section 4): every triplet of the bench through the four
+"""The paper's experiment (its Section 4): every triplet of the bench through the four
 methods, with Table 1, the at-optimum shares and Figures 3-4."""
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""A small model database for recognition (SPEC 6) and bench scenes of any of its models.
+"""A small model database for recognition (the paper's Section 5) and bench scenes of any
+of its models.
 
 The database holds the bench's cross prism and four other polyhedra, all in millimetres,
 centred near the origin, of about the cross's size: a box, a hexagonal prism, an L-shaped

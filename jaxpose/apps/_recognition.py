@@ -1,4 +1,4 @@
-r"""Recognition verification (SPEC 6; the paper's Section 5): the mixed algorithm decides
+r"""Recognition verification (the paper's Section 5): the mixed algorithm decides
 which hypotheses of a matcher are right.
 
 A hypothesis is a model from the database plus 2D-3D matches of its vertices. The

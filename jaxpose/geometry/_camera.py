@@ -1,7 +1,7 @@
 """The pinhole camera as a 3x4 projection matrix calibrated in the world frame.
 
 A camera is a matrix `C` (3, 4) with rows `c1, c2, c3`; a world point `p` is seen at
-pixel `(u, v)` when (SPEC Eq. 4)
+pixel `(u, v)` when (the paper's Eq. 4)
 
 $$ s \\, [u\\ v\\ 1]^T = C \\, [p\\ 1]^T, \\qquad s \\neq 0 $$
 
@@ -204,7 +204,7 @@ def _divide_w(h: Float[Array, "n 3"]) -> Float[Array, "n 2"]:
 
 
 def project(C: Real[ArrayLike, "3 4"], points: Real[ArrayLike, "n 3"]) -> Float[Array, "n 2"]:
-    """Pixels of world points (SPEC Eq. 4).
+    """Pixels of world points (the paper's Eq. 4).
 
     $$ [x\\ y\\ w]^T = C \\, [p\\ 1]^T, \\qquad (u, v) = (x / w,\\ y / w) $$
 
@@ -265,7 +265,7 @@ def project_with_depth(
 def ray_planes(
     C: Real[ArrayLike, "3 4"], uv: Real[ArrayLike, "n 2"]
 ) -> tuple[Float[Array, "n 3"], Float[Array, " n"], Float[Array, "n 3"], Float[Array, " n"]]:
-    """The two planes whose intersection is the visual ray of each pixel (SPEC Eq. 5).
+    """The two planes whose intersection is the visual ray of each pixel (the paper's Eq. 5).
 
     $$ n_1 = c_1[{:}3] - u \\, c_3[{:}3], \\quad a_1 = c_1[3] - u \\, c_3[3], $$
     $$ n_2 = c_2[{:}3] - v \\, c_3[{:}3], \\quad a_2 = c_2[3] - v \\, c_3[3]. $$

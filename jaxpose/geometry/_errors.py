@@ -1,4 +1,4 @@
-"""Error measures of a pose: pixels (SPEC Eq. 8) and the paper's pose error in model units.
+"""Error measures of a pose: pixels (the paper's Eq. 8) and the paper's pose error in model units.
 
 A pose `(R, t)` maps model points to the world, `p_i = R m_i + t`; the camera `C`
 (3, 4) is calibrated in the world frame (see `jaxpose._camera`). One problem, no batch
@@ -72,7 +72,7 @@ def reprojection_rms(
     image: ImagePoints,
     mask: Mask = None,
 ) -> Float[Array, ""]:
-    """Root-mean-square reprojection error of a pose (SPEC Eq. 8), in pixels.
+    """Root-mean-square reprojection error of a pose (the paper's Eq. 8), in pixels.
 
     $$ e = \\sqrt{\\frac{1}{N} \\sum_i (\\hat u_i - u_i)^2 + (\\hat v_i - v_i)^2} $$
 
@@ -102,7 +102,7 @@ def pose_error_per_point(
     model: ModelPoints,
     image: ImagePoints,
 ) -> Float[Array, " n"]:
-    """The paper's per-vertex pose error (SPEC Section 4), in model units.
+    """The paper's per-vertex pose error (Section 4), in model units.
 
     $$ E_i = d_i \\sin a_i $$
 
@@ -150,7 +150,7 @@ def pose_error(
     image: ImagePoints,
     mask: Mask = None,
 ) -> Float[Array, ""]:
-    """Mean of the paper's per-vertex pose error (SPEC Section 4), in model units.
+    """Mean of the paper's per-vertex pose error (Section 4), in model units.
 
     $$ E = \\frac{1}{N} \\sum_i d_i \\sin a_i $$
 

@@ -1,4 +1,4 @@
-"""Rotation parameterisations of SPEC §2 (paper Appendix A), as pure JAX functions.
+"""Rotation parameterisations of the paper (Section 2.2, Appendix A), as pure JAX functions.
 
 Every function takes **one** rotation (no batch axis; `jax.vmap` for many), follows the
 floating dtype of its input (float32 or float64; integer input is promoted to the default

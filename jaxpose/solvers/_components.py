@@ -311,9 +311,9 @@ def _or_add(x, y):
 def degeneracy(
     u: tuple[Array, Array, Array], v: tuple[Array, Array, Array], x, min_area, collinear_tol
 ):
-    """SPEC 3.1's tests (`three_point`) in component form: `u`, `v` the three pixels'
-    coordinates, `x` the three model points. Returns `(degenerate_image,
-    degenerate_model)`."""
+    """The three-point method's degeneracy tests (`three_point`; the paper's Section 2.1)
+    in component form: `u`, `v` the three pixels' coordinates, `x` the three model
+    points. Returns `(degenerate_image, degenerate_model)`."""
     area = 0.5 * jnp.abs((u[1] - u[0]) * (v[2] - v[0]) - (v[1] - v[0]) * (u[2] - u[0]))
     e12, e13, e23 = sub(x[0], x[1]), sub(x[0], x[2]), sub(x[1], x[2])
     longest = jnp.maximum(jnp.maximum(norm_sq(e12), norm_sq(e13)), norm_sq(e23))

@@ -1,4 +1,4 @@
-"""The small-movement linear method (SPEC 3.2; the paper's Section 2.2, Eqs. 3-7).
+"""The small-movement linear method (the paper's Section 2.2, Eqs. 3-7).
 
 A small motion moves every world point by `dp = t + r x p` (Eq. 3, rotation vector `r`).
 Put into the two visual-ray planes of each match (Eq. 5) it gives two linear equations

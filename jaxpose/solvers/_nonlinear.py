@@ -1,4 +1,4 @@
-"""The non-linear method (SPEC 3.3; the paper's Section 2.3): Levenberg-Marquardt on Eq. 8.
+"""The non-linear method (the paper's Section 2.3): Levenberg-Marquardt on Eq. 8.
 
 Parameters, as in the paper, are the quaternion's vector part and a translation,
 `y = (q1, q2, q3, d1, d2, d3)`, with `q0 = sqrt(1 - |q|^2)` recovered from the unit

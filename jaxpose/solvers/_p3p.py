@@ -1,4 +1,4 @@
-r"""The three-point method (SPEC 3.1): perspective-three-point, all real solutions.
+r"""The three-point method (the paper's Section 2.1): perspective-three-point, all real solutions.
 
 Given unit bearings $f_i$ and model points $m_i$ ($i = 1, 2, 3$), find every pose with
 $\lambda_i f_i = R m_i + t$, $\lambda_i > 0$. The depths satisfy the three law-of-cosines
@@ -57,7 +57,8 @@ vector kernels. Measured on 2e4 random noise-free instances in float64 (see
 99.9th-percentile error 5.2e-13 (OpenCV and PoseLib: 1.0e-10).
 
 `three_point` wraps it for the paper's setting: a camera matrix calibrated in the world
-frame, pixel measurements, and the degeneracy tests of SPEC 3.1, each with a status.
+frame, pixel measurements, and the degeneracy tests (the paper's Section 2.1: the
+triangle's area in the image; and a collinear-model test), each with a status.
 """
 
 from __future__ import annotations
@@ -375,7 +376,8 @@ def three_point(
     collinear_tol: float = 5e-3,
     approximate: bool = False,
 ) -> ThreePointResult:
-    """The three-point method in the world frame, with the degeneracy tests of SPEC 3.1.
+    """The three-point method in the world frame, with the degeneracy tests (the paper's
+    Section 2.1: the triangle's area in the image; and a collinear-model test).
 
     **Arguments:**
     - `camera`: `C` `(3, 4)`, calibrated in the world frame (any scale or sign).

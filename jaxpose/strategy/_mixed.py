@@ -1,4 +1,4 @@
-"""The mixed algorithm (SPEC 4; the paper's Section 3) over all triplets of a problem at once.
+"""The mixed algorithm (the paper's Section 3) over all triplets of a problem at once.
 
 For every triplet of matches, as one fixed-shape batch:
 

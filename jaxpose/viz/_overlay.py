@@ -1,5 +1,5 @@
-"""Superimposition (SPEC 6): a model's edges drawn over an image at a recovered pose, and a
-simple renderer of the bench so that there is an image to draw over.
+"""Superimposition (the paper's Section 5): a model's edges drawn over an image at a
+recovered pose, and a simple renderer of the bench so that there is an image to draw over.
 
 Drawing is OpenCV's (`cv2.line`, antialiased, sub-pixel coordinates). Edges are clipped
 to the part in front of the camera and to the image; with lens distortion

@@ -1,4 +1,4 @@
-"""Three-point method (SPEC 3.1): `p3p` and `three_point`.
+"""Three-point method (the paper's Section 2.1): `p3p` and `three_point`.
 
 Every batched test goes through one of three jit-compiled, vmapped functions with a fixed
 batch size (compiling the solver is the expensive part), padding smaller batches.
