@@ -15,13 +15,12 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 from ..geometry._errors import pose_error
 from ..geometry._pose import Observations, Pose, observations, transform
 from ..geometry._validate import as_batched, check_problem, no_type_check
-from ..solvers._linear import linear
-from ..solvers._nonlinear import nonlinear
-from ..solvers._residuals import in_front, pixel_residuals, rms, rounding_level
+from ..solvers._residuals import pixel_residuals, rms
 from ..solvers._status import Status
 from ..strategy._best import Answer, answer, answer_batch, settle_batch
 from ..strategy._implicit import polish
 from ..strategy._jobs import CHUNK
+from ..strategy._methods import per_triplet
 from ..strategy._mixed import mixed_from_initial, mixed_from_initial_batch
 from ..strategy._options import METHODS as METHODS
 from ..strategy._options import Options, resolve
@@ -113,7 +112,8 @@ def solve(
         res = mixed_from_initial(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
     else:
-        found = _per_triplet(sobs, initial, options)
+        one = jax.tree.map(lambda a: a[None], (sobs, initial))
+        found = jax.tree.map(lambda a: a[0], per_triplet(*one, options))
     finish = functools.partial(_finish, options.method, derivative=options.derivative)
     return _not_finite(finish(obs, initial.triplets, *found), finite)
 
@@ -166,7 +166,7 @@ def solve_many(
         res = mixed_from_initial_batch(sobs, initial, options=options)
         found = (res.pose, res.error, res.status)
     else:
-        found = jax.vmap(lambda o, i: _per_triplet(o, i, options))(sobs, initial)
+        found = per_triplet(sobs, initial, options)
     return jax.vmap(_not_finite)(
         jax.vmap(functools.partial(_finish, options.method, derivative=options.derivative))(
             obs, initial.triplets, *found
@@ -248,46 +248,6 @@ def _initial(obs: Observations, options: Options):
     sobs = jax.lax.stop_gradient(obs)
     _, triplets = select_triplets(sobs, options)
     return initial_poses(sobs, options=options, triplets=triplets)
-
-
-def _per_triplet(sobs: Observations, initial, options: Options):
-    """Every triplet's pose, error and status for the methods other than mixed."""
-    method, threshold = options.method, options.threshold
-    dtype = sobs.camera.dtype
-    big = jnp.finfo(dtype).max
-    usable = initial.status == Status.OK
-    if method == "three_point":
-        # The three-point solver checks only its own triplet's depths: a pose that puts
-        # other used matches behind the camera is reported, not accepted.
-        front = jax.vmap(lambda R, t: in_front(transform(Pose(R, t), sobs.model), sobs))(
-            initial.pose.R, initial.pose.t
-        )
-        error = initial.error
-        status = jnp.where(
-            usable, jnp.where(front, Status.OK, Status.BEHIND_CAMERA), initial.status
-        )
-        if threshold is not None:
-            reject = (status == Status.OK) & (error >= threshold)
-            status = jnp.where(reject, Status.REJECTED, status)
-        return initial.pose, error, status
-    if method == "linear":
-        iterations = options.linear_iterations
-        run = jax.vmap(lambda R, t: linear(sobs, Pose(R, t), iterations=iterations))
-    else:
-        max_steps = options.max_steps
-        run = jax.vmap(lambda R, t: nonlinear(sobs, Pose(R, t), max_steps=max_steps))
-    out = run(initial.pose.R, initial.pose.t)
-    status = jnp.where(usable, out.status, initial.status)
-    error = jnp.where(usable, out.error, big)
-    converged = status == Status.OK
-    if threshold is None:
-        best = jnp.min(jnp.where(converged, error, big))
-        floor = rounding_level(sobs)
-        thr = jnp.where(best < big, jnp.maximum(best * (1 + options.rel_threshold), floor), big)
-    else:
-        thr = jnp.asarray(threshold, dtype)
-    status = jnp.where(converged & (error >= thr), Status.REJECTED, status)
-    return out.pose, error, status
 
 
 def _finish(

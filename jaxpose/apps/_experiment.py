@@ -14,9 +14,8 @@ import numpy as np
 from ..api._programs import program
 from ..geometry._errors import pose_error
 from ..geometry._pose import Pose, observations
-from ..solvers._linear import linear
-from ..solvers._nonlinear import nonlinear
 from ..solvers._status import Status
+from ..strategy import run_method
 from ..strategy._mixed import MixedResult, mixed_from_initial
 from ..strategy._options import Options
 from ..strategy._triplets import initial_poses, triplet_indices
@@ -133,15 +132,11 @@ def _four_methods(camera, model, image, threshold):
     `jaxpose.api._programs`, so that a second run loads it)."""
     obs = observations(camera, model, image)
     initial = initial_poses(obs, options=_EVERY_TRIPLET)
-
-    def lin(R, t):
-        return linear(obs, Pose(R, t))
-
-    def nl(R, t):
-        return nonlinear(obs, Pose(R, t))
-
-    lin_res = jax.vmap(lin)(initial.pose.R, initial.pose.t)
-    nl_res = jax.vmap(nl)(initial.pose.R, initial.pose.t)
+    one = jax.tree.map(lambda a: a[None], (obs, initial))
+    runs = {
+        method: jax.tree.map(lambda a: a[0], run_method(method, *one, _EVERY_TRIPLET))
+        for method in ("linear", "nonlinear")
+    }
     mix = mixed_from_initial(obs, initial, threshold=threshold, options=_EVERY_TRIPLET)
 
     def mm(poses):
@@ -149,19 +144,17 @@ def _four_methods(camera, model, image, threshold):
             poses.R, poses.t
         )
 
-    usable = initial.status == Status.OK
-
-    def settled(res):
+    def settled(pose, error, status):
         """A run that did not converge leaves the sample at its three-point pose."""
-        ok = res.status == Status.OK
+        ok = status == Status.OK
         pose = Pose(
-            jnp.where(ok[:, None, None], res.pose.R, initial.pose.R),
-            jnp.where(ok[:, None], res.pose.t, initial.pose.t),
+            jnp.where(ok[:, None, None], pose.R, initial.pose.R),
+            jnp.where(ok[:, None], pose.t, initial.pose.t),
         )
-        return pose, jnp.where(ok, res.error, initial.error)
+        return pose, jnp.where(ok, error, initial.error)
 
-    lin_pose, lin_error = settled(lin_res)
-    nl_pose, nl_error = settled(nl_res)
+    lin_pose, lin_error = settled(*runs["linear"])
+    nl_pose, nl_error = settled(*runs["nonlinear"])
     poses = {
         "three_point": initial.pose,
         "nonlinear": nl_pose,
@@ -176,8 +169,8 @@ def _four_methods(camera, model, image, threshold):
     }
     statuses = {
         "three_point": initial.status,
-        "nonlinear": jnp.where(usable, nl_res.status, initial.status),
-        "linear": jnp.where(usable, lin_res.status, initial.status),
+        "nonlinear": runs["nonlinear"][2],
+        "linear": runs["linear"][2],
         "mixed": mix.status,
     }
     return ({m: mm(p) for m, p in poses.items()}, errors, statuses, initial.status, mix)

@@ -3,6 +3,8 @@ algorithm (three-point, linear, Levenberg-Marquardt, retries) in `jax.lax` contr
 robust scoring by consensus, pose covariance, the implicit derivative of the answer.
 """
 
+from ._accept import accepts as accepts
+from ._accept import threshold as threshold
 from ._best import Answer as Answer
 from ._best import Best as Best
 from ._best import answer as answer
@@ -12,6 +14,9 @@ from ._best import best_of_roots_batch as best_of_roots_batch
 from ._best import spread_matches as spread_matches
 from ._covariance import PoseCovariance as PoseCovariance
 from ._covariance import pose_covariance as pose_covariance
+from ._methods import SINGLE_METHODS as SINGLE_METHODS
+from ._methods import per_triplet as per_triplet
+from ._methods import run_method as run_method
 from ._mixed import MixedResult as MixedResult
 from ._mixed import mixed as mixed
 from ._mixed import mixed_from_initial as mixed_from_initial

@@ -60,8 +60,8 @@ from ..solvers._kernel_linear import (
     pixel_error_kernel,
 )
 from ..solvers._kernel_p3p import p3p_components
-from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
+from ._accept import accepts, threshold
 from ._mixed import mixed_from_initial, mixed_from_initial_batch
 from ._options import Options
 from ._planar import planar_partner
@@ -247,17 +247,12 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     error = jnp.where(converged, lin_error, big)
 
     # 4. acceptance, as the mixed algorithm's
-    best = jnp.min(error, axis=-1)
-    if options.threshold is None:
-        floor = jax.vmap(rounding_level)(obs)
-        thr = jnp.where(best < big, jnp.maximum(best * (1 + options.rel_threshold), floor), big)
-    else:
-        thr = jnp.full_like(best, options.threshold)
+    thr = threshold(obs, jnp.min(error, axis=-1), options)
     k = jnp.argmin(error, axis=-1)[:, None]
     chosen = [a[:, 0] for a in take_along([*R1, *t1, lin_error, converged, pick], k, axis=1)]
     R1, t1, error = Mat3(*chosen[:9]), Vec3(*chosen[9:12]), chosen[12]
     converged_k, root = chosen[13], chosen[14]
-    accepted = converged_k & (best < thr)
+    accepted = accepts(converged_k, error, thr)
     pose = Pose(mat_to_array(R1), vec_to_array(t1))
 
     # 5. the planar partner of the answer (its linear run only in a block that has one)

@@ -84,8 +84,8 @@ from ..solvers._kernel_linear import (
 )
 from ..solvers._linear import LinearResult
 from ..solvers._nonlinear import nonlinear
-from ..solvers._residuals import rounding_level
 from ..solvers._status import Status
+from ._accept import accepts, threshold
 from ._jobs import Jobs, default_chunk, ranked, run_jobs
 from ._options import Options, resolve
 from ._planar import planar_partner
@@ -239,14 +239,8 @@ def _ranked_batch(need: Bool[Array, "B T"], priority: Float[Array, "B T"], budge
 def thresholds(obs: Observations, lin: LinearResult, lin_ok, options: Options):
     """Each problem's acceptance threshold `(B,)` (px): `options.threshold`, or the
     adaptive one from step 2's lowest converged error (see the module docstring)."""
-    dtype = obs.camera.dtype
-    big = jnp.finfo(dtype).max
-    B = lin.error.shape[0]
-    if options.threshold is None:
-        best = jnp.min(jnp.where(lin_ok, lin.error, big), axis=1)
-        floor = jax.vmap(rounding_level)(obs)
-        return jnp.where(best < big, jnp.maximum(best * (1 + options.rel_threshold), floor), big)
-    return jnp.full((B,), options.threshold, dtype)
+    big = jnp.finfo(lin.error.dtype).max
+    return threshold(obs, jnp.min(jnp.where(lin_ok, lin.error, big), axis=1), options)
 
 
 def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: Pose, steps):
@@ -286,7 +280,7 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     runs = jax.tree.map(lambda x: jnp.stack([x, x]), LinearResult(start, zero, zero, none))
     runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(0, 2, trip, (runs, nl))
     res, again = (jax.tree.map(lambda x, i=i: x[i], runs) for i in (0, 1))
-    accepted = (res.status == Status.OK) & (res.error < th)
+    accepted = accepts(res.status == Status.OK, res.error, th)
     lm_ok = nl_status == Status.OK
     # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
     # converged (stationary) pose stands: Gauss-Newton can be repelled from an optimum
@@ -294,7 +288,7 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     use_nl = lm_ok & (again.status != Status.OK)
     pose4 = _where_pose(use_nl, nl_pose, again.pose)
     error4 = jnp.where(use_nl, nl_error, again.error)
-    accepted4 = lm_ok & (error4 < th)
+    accepted4 = accepts(lm_ok, error4, th)
     status = jnp.select(
         [accepted, accepted4, ~lm_ok],
         [Status.ACCEPTED_LINEAR, Status.ACCEPTED_AFTER_NONLINEAR, Status.NONLINEAR_NOT_CONVERGED],
