@@ -33,6 +33,7 @@ from ..geometry._validate import (
     no_type_check,
 )
 from ..solvers._status import Status
+from ..strategy import escalation
 from ..strategy._options import Options, RobustOptions, resolve
 from ..strategy._robust import robust
 from ._batch import run_batched
@@ -128,19 +129,13 @@ def _pad_points(obj: np.ndarray, img: np.ndarray):
 
 
 @functools.lru_cache(maxsize=64)
-def _stages(options: Options) -> tuple[Options, Options | None]:
-    """The programs an OpenCV-convention call runs: with the answer from the best roots
-    (`refine`) and its fallback, first `best_of_roots` alone, then, only for problems it
-    did not settle, the whole mixed algorithm (`refine=None`: what the fallback computes),
-    each compiled when first needed. Otherwise `options` alone. Both compute values only
+def _stages(options: Options) -> tuple[Options, ...]:
+    """The programs an OpenCV-convention call runs: the rungs of the pipeline's
+    `escalation` (the best roots of the spread triplets, of more triplets, the whole
+    mixed algorithm), each a program of its own, run only for the problems the rungs
+    before it did not settle and compiled when first needed. Values only
     (`derivative=False`: the numpy outputs carry no derivative)."""
-    options = dataclasses.replace(options, derivative=False)  # numpy out: values only
-    if options.method != "mixed" or options.refine is None or not options.fallback:
-        return options, None
-    return (
-        dataclasses.replace(options, fallback=False),
-        dataclasses.replace(options, refine=None),
-    )
+    return escalation(dataclasses.replace(options, derivative=False))
 
 
 def _read_array(x, name: str) -> np.ndarray:
@@ -219,7 +214,7 @@ def solve_pnp(
     K, dist, obj, raw, img = _prepare(
         object_points, image_points, camera_matrix, dist_coeffs, False
     )
-    first, then = _stages(options)
+    rungs = _stages(options)
     if dist is not None:  # the pixels as given, for the refinement in the image
         _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
@@ -228,9 +223,13 @@ def solve_pnp(
         # (numpy in: one transfer each way, no conversion program to compile on a first
         # call, and no separate `device_put` call)
         packed = _pack(K, obj, img, mask)
-        out = np.array(program(_solve_opencv, first)(packed))
-        if then is not None and not out[0]:
-            out = np.array(program(_solve_opencv, then)(packed))
+        out = np.array(program(_solve_opencv, rungs[0])(packed))
+        for k, rung in enumerate(rungs[1:], start=2):
+            if out[0]:
+                break
+            again = np.array(program(_solve_opencv, rung)(packed))
+            if again[0] or k == len(rungs):  # the last rung's answer stands
+                out = again
         if dist is not None and out[0] and options.method != "three_point":
             # the pose that minimises the error in the image, as OpenCV's
             packed = _pack_refine(K, dist, out[1:4], out[4:7], obj, raw, mask)
@@ -278,7 +277,7 @@ def solve_pnp_batch(
     """
     options = resolve(options, changes)
     K, dist, obj, raw, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
-    first, then = _stages(options)
+    rungs = _stages(options)
     K = np.asarray(K, np.float64)
     _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
@@ -295,13 +294,16 @@ def solve_pnp_batch(
                 min_tail=MIN_CHUNK if chunk_size is None else None,
             )
 
-        ok, rvecs, tvecs = run(obj, img, mask, first, CHUNK)
-        need = np.flatnonzero(~np.asarray(ok))
-        if then is not None and need.size:
-            # the problems the best roots did not settle: the whole mixed algorithm
-            redo = run(obj[need], img[need], mask[need], then, FALLBACK_CHUNK)
+        ok, rvecs, tvecs = run(obj, img, mask, rungs[0], CHUNK)
+        for k, rung in enumerate(rungs[1:], start=2):
+            need = np.flatnonzero(~np.asarray(ok))
+            if not need.size:
+                break
+            # the problems the rungs before did not settle
+            redo = run(obj[need], img[need], mask[need], rung, FALLBACK_CHUNK)
+            keep = np.ones(need.size, bool) if k == len(rungs) else np.asarray(redo[0])
             for out, part in zip((ok, rvecs, tvecs), redo, strict=True):
-                out[need] = part
+                out[need[keep]] = np.asarray(part)[keep]
         if dist is not None and options.method != "three_point":
             # the poses that minimise the error in the image, as OpenCV's
             rv, tv = run_batched(

@@ -58,8 +58,8 @@ def warm_up_plan(
     the program (or loads it) and returns whether it compiled."""
     options = Options() if options is None else options
     plan: list[tuple[str, Callable[[], bool]]] = []
-    stages = [s for s in _stages(options) if s is not None]
-    names = ["solve_pnp", "solve_pnp fallback"]
+    stages = list(_stages(options))
+    names = ["solve_pnp"] + [f"solve_pnp, rung {k}" for k in range(2, len(stages) + 1)]
     for n in sorted({bucket_points(int(p)) for p in points}):
         for stage, name in zip(stages, names, strict=False):
 

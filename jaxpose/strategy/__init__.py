@@ -11,6 +11,7 @@ from ._best import answer as answer
 from ._best import answer_batch as answer_batch
 from ._best import best_of_roots as best_of_roots
 from ._best import best_of_roots_batch as best_of_roots_batch
+from ._best import escalation as escalation
 from ._best import spread_matches as spread_matches
 from ._covariance import PoseCovariance as PoseCovariance
 from ._covariance import pose_covariance as pose_covariance

@@ -21,11 +21,17 @@ to
 5. for a coplanar model, also refine the answer's planar-ambiguity partner and keep it
    when it converges to a lower error (as the mixed algorithm does).
 
-A problem where none of the refined roots is accepted falls back to the whole mixed
-algorithm (every triplet of `select_triplets`, Levenberg-Marquardt, the retries). On
-noisy problems the best-scored roots lie in the basin of the optimum, so the fallback is
-rare; its cost is paid only where it runs (`answer_batch` gathers the problems that need
-it).
+A problem where none of the refined roots is accepted escalates (`escalation`): first
+to the best roots of more triplets (those of the `Options.wider_spread` matches farthest
+apart, `WIDER_REFINE` of them refined), then to the whole mixed algorithm (every triplet of
+`select_triplets`, Levenberg-Marquardt, the retries). On noisy problems the best-scored
+roots lie in the basin of the optimum, so escalation is rare (about one problem in
+10^4 of the synthetic protocol and of the bench's model at random poses), and each rung
+costs what its problems cost: `answer_batch` gathers the problems that need it, a few
+at a time. (Measured on the 10 problems of 4 x 10^4 that the first rung left, on
+the bench's model and planar scenes: the wider rung settled all ten at the optimum
+that the whole algorithm reaches, at a few hundred triplets' cost instead of 560
+triplets with Levenberg-Marquardt each.)
 
 Steps 1-5 are batch-first kernels in component form (`jaxpose.solvers._kernel_p3p`,
 `_kernel_linear`) over a leading problem axis, in blocks of problems sized for the cache
@@ -34,6 +40,7 @@ Steps 1-5 are batch-first kernels in component form (`jaxpose.solvers._kernel_p3
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -62,7 +69,7 @@ from ..solvers._kernel_linear import (
 from ..solvers._kernel_p3p import p3p_components
 from ..solvers._status import Status
 from ._accept import accepts, threshold
-from ._mixed import mixed_from_initial, mixed_from_initial_batch
+from ._mixed import mixed_from_initial_batch
 from ._options import Options
 from ._planar import planar_partner
 from ._triplets import best_triplet, initial_poses, select_triplets, triplet_indices
@@ -77,12 +84,17 @@ __all__ = [
     "best_of_roots",
     "best_of_roots_batch",
     "distinct_best",
+    "escalation",
     "settle_batch",
     "spread_matches",
 ]
 
 #: Two roots whose rotations differ by less than this angle (rad) are one start.
 DISTINCT_ANGLE = 0.1
+
+#: Roots refined by the second rung of `escalation` (at least; the best roots of the
+#: triplets of `Options.wider_spread` matches).
+WIDER_REFINE = 8
 
 # Triplets per block of problems of the kernels (a block's roots, scores and linear runs
 # stay in the processor's cache).
@@ -356,89 +368,120 @@ def settle_batch(obs: Observations, found: Answer, steps: int = 2) -> Answer:
     return Answer(found.triplet, pose, jnp.where(keep, error, found.error), found.status)
 
 
-def _exhaustive(obs: Observations, options: Options) -> Answer:
-    """The whole mixed algorithm over the triplets of `select_triplets`, reduced to its
-    answer."""
-    _, triplets = select_triplets(obs, options)
-    initial = initial_poses(obs, options=options, triplets=triplets)
-    res = mixed_from_initial(obs, initial, options=options)
-    index, _ = best_triplet(res.error, res.status)
-    pose = Pose(res.pose.R[index], res.pose.t[index])
-    return Answer(initial.triplets[index], pose, res.error[index], res.status[index])
-
-
 def _quick(best: Best) -> Answer:
     return Answer(best.triplet, best.pose, best.error, best.status)
 
 
-def answer(obs: Observations, options: Options) -> Answer:
-    """The answer of one problem: `best_of_roots`, else (none accepted) the whole mixed
-    algorithm. Under `vmap` both branches run for every problem: batches use
-    `answer_batch`, which runs the fallback only for the problems that need it.
-    `options.fallback=False`: `best_of_roots` alone (a caller outside `jit` can run the
-    whole algorithm itself where it is needed, and compile it only then)."""
-    one = jax.tree.map(lambda a: jnp.asarray(a)[None], obs)
-    best = best_of_roots_batch(one, answer_triplets(one, options), options)
-    best = jax.tree.map(lambda a: a[0], best)
-    if not options.fallback:
-        return _quick(best)
-    return jax.lax.cond(
-        best.accepted,
-        lambda: _quick(best),
-        lambda: _exhaustive(obs, options),
-    )
+def escalation(options: Options) -> tuple[Options, ...]:
+    """The rungs a problem climbs until one accepts a pose (the mixed method with
+    `refine`): the best roots of the spread triplets (`options` without fallback); where
+    `spread_points` chose fewer than `wider_spread` matches, the best roots of the
+    triplets of `wider_spread` matches, `max(refine, WIDER_REFINE)` refined; the whole
+    mixed algorithm (`refine=None`). Each rung is a single rung (`fallback=False`, or
+    `refine=None`): `escalation` of it is itself. Other methods, `refine=None` or
+    `fallback=False`: `(options,)`. A problem not accepted by one rung runs the next;
+    the last rung's answer stands."""
+    if options.method != "mixed" or options.refine is None or not options.fallback:
+        return (options,)
+    first = dataclasses.replace(options, fallback=False)
+    rungs = [first]
+    k, wide = options.spread_points, options.wider_spread
+    if k is not None and wide is not None and k < wide and options.triplet_budget is None:
+        refine = max(options.refine, WIDER_REFINE)
+        rungs.append(dataclasses.replace(first, spread_points=wide, refine=refine))
+    rungs.append(dataclasses.replace(options, refine=None))
+    return tuple(rungs)
 
 
-def fallback_slots(B: int, triplets: int = 1) -> int:
-    """Problems per pass of the batch fallback: about one in sixteen, at least one, and
-    at most about 8,192 triplets' worth (bounded memory whatever `B`)."""
-    return max(1, min(B, -(-B // 16), max(1, 8192 // max(triplets, 1))))
-
-
-def answer_batch(obs: Observations, options: Options) -> Answer:
-    """`answer` for a batch of problems (`obs` with a leading `B` axis).
-
-    `best_of_roots_batch` runs for every problem; those with no accepted root are
-    gathered, `fallback_slots(B, T)` at a time, into the whole mixed algorithm (one batch
-    of it per pass, `mixed_from_initial_batch`), until none is left: the fallback costs
-    what the problems that need it cost, not the batch size. `options.fallback=False`:
-    `best_of_roots_batch` alone (as in `answer`)."""
-    B = obs.mask.shape[0]
-    best = best_of_roots_batch(obs, answer_triplets(obs, options), options)
-    start = _quick(best)
-    if not options.fallback:
-        return start
-    _, triplets = jax.vmap(lambda o: select_triplets(o, options))(obs)
-    triplets = jnp.broadcast_to(jnp.asarray(triplets, jnp.int32), (B, *triplets.shape[-2:]))
-    F = fallback_slots(B, triplets.shape[1])
-
-    def pending(carry):
-        need, _ = carry
-        return jnp.any(need)
-
-    def one_pass(carry):
-        need, out = carry
-        _, idx = jax.lax.top_k(need.astype(jnp.int32), F)
-        take = need[idx]
-        sub = jax.tree.map(lambda x: x[idx], obs)
+def _rung(obs: Observations, options: Options) -> tuple[Answer, Bool[Array, " B"]]:
+    """One rung of `escalation` for a batch: its answers and which are accepted."""
+    if options.refine is None:
+        _, triplets = jax.vmap(lambda o: select_triplets(o, options))(obs)
+        B = obs.mask.shape[0]
+        triplets = jnp.broadcast_to(jnp.asarray(triplets, jnp.int32), (B, *triplets.shape[-2:]))
         initial = jax.vmap(lambda o, tr: initial_poses(o, options=options, triplets=tr))(
-            sub, triplets[idx]
+            obs, triplets
         )
-        res = mixed_from_initial_batch(sub, initial, options=options)
-        index, _ = jax.vmap(best_triplet)(res.error, res.status)
-        rows = jnp.arange(F)
+        res = mixed_from_initial_batch(obs, initial, options=options)
+        index, accepted = jax.vmap(best_triplet)(res.error, res.status)
+        rows = jnp.arange(B)
         found = Answer(
             initial.triplets[rows, index],
             Pose(res.pose.R[rows, index], res.pose.t[rows, index]),
             res.error[rows, index],
             res.status[rows, index],
         )
+        return found, accepted
+    best = best_of_roots_batch(obs, answer_triplets(obs, options), options)
+    return _quick(best), best.accepted
 
-        def scatter(old, new):
-            keep = take.reshape((F,) + (1,) * (new.ndim - 1))
-            return old.at[idx].set(jnp.where(keep, new, old[idx]))
 
-        return need.at[idx].set(False), jax.tree.map(scatter, out, found)
+def _rung_triplets(options: Options, n: int) -> int:
+    """Triplets per problem of a rung (sizes its gathering passes)."""
+    if options.refine is None:
+        return len(triplet_indices(n, options.max_triplets))
+    k = options.spread_points
+    return math.comb(min(n, k), 3) if k is not None else len(triplet_indices(n))
 
-    _, out = jax.lax.while_loop(pending, one_pass, (~best.accepted, start))
+
+def answer(obs: Observations, options: Options) -> Answer:
+    """The answer of one problem: the rungs of `escalation`, each run only when the
+    ones before it accepted nothing (`jax.lax.cond`). Under `vmap` every branch runs for
+    every problem: batches use `answer_batch`, which runs a rung only for the problems
+    that need it. `options.fallback=False`: the best roots alone (a caller outside `jit`
+    can run the other rungs itself where they are needed, and compile them only then)."""
+    one = jax.tree.map(lambda a: jnp.asarray(a)[None], obs)
+    rungs = escalation(options)
+
+    def climb(k: int):
+        found, accepted = _rung(one, rungs[k])
+        found = jax.tree.map(lambda a: a[0], found)
+        if k + 1 == len(rungs):
+            return found
+        return jax.lax.cond(accepted[0], lambda: found, lambda: climb(k + 1))
+
+    return climb(0)
+
+
+def fallback_slots(B: int, triplets: int = 1) -> int:
+    """Problems per pass of a batch's later rungs: about one in sixteen, at least one,
+    and at most about 8,192 triplets' worth (bounded memory whatever `B`)."""
+    return max(1, min(B, -(-B // 16), max(1, 8192 // max(triplets, 1))))
+
+
+def answer_batch(obs: Observations, options: Options) -> Answer:
+    """`answer` for a batch of problems (`obs` with a leading `B` axis).
+
+    The first rung of `escalation` runs for every problem; the problems it leaves are
+    gathered, `fallback_slots(B, T)` at a time, into the next rung (one batch of it per
+    pass) until none is left, and so on: each rung costs what the problems that need it
+    cost, not the batch size. `options.fallback=False`: the first rung alone (as in
+    `answer`)."""
+    B, n = obs.mask.shape
+    rungs = escalation(options)
+    out, accepted = _rung(obs, rungs[0])
+    for k, rung in enumerate(rungs[1:], start=1):
+        F = fallback_slots(B, _rung_triplets(rung, n))
+        last = k + 1 == len(rungs)
+
+        def pending(carry):
+            return jnp.any(carry[0])
+
+        def one_pass(carry, rung=rung, F=F, last=last):
+            need, out, accepted = carry
+            _, idx = jax.lax.top_k(need.astype(jnp.int32), F)
+            take = need[idx]
+            found, ok = _rung(jax.tree.map(lambda x: x[idx], obs), rung)
+            # the last rung's answer stands; an earlier one's only where it accepts
+            keep = take if last else take & ok
+
+            def scatter(old, new):
+                mask = keep.reshape((F,) + (1,) * (new.ndim - 1))
+                return old.at[idx].set(jnp.where(mask, new, old[idx]))
+
+            out = jax.tree.map(scatter, out, found)
+            accepted = accepted.at[idx].set(jnp.where(keep, ok, accepted[idx]))
+            return need.at[idx].set(False), out, accepted
+
+        _, out, accepted = jax.lax.while_loop(pending, one_pass, (~accepted, out, accepted))
     return out

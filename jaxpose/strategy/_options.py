@@ -130,9 +130,13 @@ class Options:
       of the `k` matches farthest apart in the image (`jaxpose.strategy.spread_matches`;
       default `4`: 4 triplets); `None`: the triplets `max_triplets` and
       `triplet_budget` select (a `triplet_budget` takes precedence too).
-    - `fallback`: with `refine`, run the whole mixed algorithm for a problem none of
-      whose refined roots is accepted (default `True`); `False`: report it not accepted
-      (status of its best candidate) and run nothing more.
+    - `fallback`: with `refine`, escalate a problem none of whose refined roots is
+      accepted (default `True`): to the best roots of the triplets of `wider_spread`
+      matches, then to the whole mixed algorithm (`jaxpose.strategy.escalation`);
+      `False`: report it not accepted (status of its best candidate) and run nothing
+      more.
+    - `wider_spread`: the matches of the escalation's middle rung (default `12`: 220
+      triplets, 8 roots refined); `None`: straight to the whole mixed algorithm.
     - `chunk`: slots of the Levenberg-Marquardt buffer of the mixed algorithm (default
       `None`: a size that grows with the batch, see `mixed_from_initial_batch`).
     - `derivative`: attach the implicit derivative to the answer (default `True`; see
@@ -158,6 +162,7 @@ class Options:
     refine: int | None = 2
     spread_points: int | None = 4
     fallback: bool = True
+    wider_spread: int | None = 12
     chunk: int | None = None
     derivative: bool = True
 
@@ -178,6 +183,7 @@ class Options:
         _check_int("triplet_budget", self.triplet_budget, 1, optional=True)
         _check_int("refine", self.refine, 1, optional=True)
         _check_int("spread_points", self.spread_points, 3, optional=True)
+        _check_int("wider_spread", self.wider_spread, 3, optional=True)
         _check_int("chunk", self.chunk, 1, optional=True)
 
 

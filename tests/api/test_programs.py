@@ -255,7 +255,7 @@ def test_the_programs_compiler_options_give_the_default_answers():
     rng = np.random.default_rng(5)
     scene = jp.apps.random_scene(rng, 12, noise=0.5, world_camera=False)
     K = np.asarray(scene.camera)[:, :3]
-    first, _ = _pnp._stages(jp.Options())
+    first = _pnp._stages(jp.Options())[0]
     obj, img, mask = _pnp._pad_points(
         np.asarray(scene.model_points), np.asarray(scene.image_points)
     )

@@ -14,6 +14,7 @@ from jaxpose.strategy._best import (
     answer_triplets,
     best_of_roots,
     distinct_best,
+    escalation,
     fallback_slots,
     spread_matches,
 )
@@ -29,10 +30,15 @@ def _problems(kind: str, n: int, B: int, noise: float, seed: int):
 
 
 @functools.cache
-def _many(refine):
-    """`solve_many` with this `refine`, values only (`derivative=False`: the answers are
-    compared, not their derivatives; a smaller program to compile)."""
-    return jax.jit(lambda C, M, I: jp.solve_many(C, M, I, refine=refine, derivative=False))
+def _many(refine, wider_spread=12):
+    """`solve_many` with this `refine` and `wider_spread`, values only
+    (`derivative=False`: the answers are compared, not their derivatives; a smaller
+    program to compile)."""
+    return jax.jit(
+        lambda C, M, I: jp.solve_many(
+            C, M, I, refine=refine, wider_spread=wider_spread, derivative=False
+        )
+    )
 
 
 def test_best_roots_reach_the_answer_of_every_triplet():
@@ -74,16 +80,51 @@ def _collinear_spread(B: int, seed: int, noise: float = 0.5):
     return np.broadcast_to(C, (B, 3, 4)), np.stack(M), np.stack(I)
 
 
+def test_escalation_rungs():
+    """The ladder: spread roots, wider roots, the whole algorithm; each rung a single
+    rung; no ladder without the fallback, for `refine=None` or another method."""
+    rungs = escalation(jp.Options())
+    assert [(r.spread_points, r.refine, r.fallback) for r in rungs] == [
+        (4, 2, False),
+        (12, 8, False),
+        (4, None, True),
+    ]
+    assert all(escalation(r) == (r,) for r in rungs)
+    assert len(escalation(jp.Options(wider_spread=None))) == 2
+    assert len(escalation(jp.Options(spread_points=12))) == 2
+    for options in (
+        jp.Options(fallback=False),
+        jp.Options(refine=None),
+        jp.Options(method="linear"),
+    ):
+        assert escalation(options) == (options,)
+
+
+def test_wider_rung_settles_what_the_spread_roots_leave():
+    """Where the spread matches are collinear (every one of their triplets degenerate),
+    the next rung, the best roots of the triplets of 12 spread matches (here all 7),
+    accepts every problem at the whole mixed algorithm's optimum, from triplets the first
+    rung never tried (one match off the line)."""
+    C, M, I = _collinear_spread(12, seed=4)
+    wider, full = _many(4)(C, M, I), _many(None)(C, M, I)
+    assert np.all(np.asarray(wider.accepted)) and np.all(np.asarray(full.accepted))
+    assert np.all(np.max(np.asarray(wider.triplet), axis=1) >= 4)
+    assert np.all(np.asarray(wider.status) == jp.Status.ACCEPTED_LINEAR)
+    np.testing.assert_allclose(wider.error, full.error, rtol=1e-9)
+    np.testing.assert_allclose(wider.pose.R, full.pose.R, atol=1e-9)
+    np.testing.assert_allclose(wider.pose.t, full.pose.t, rtol=1e-6, atol=1e-6)
+
+
 def test_fallback_runs_the_whole_mixed_algorithm():
     """Where the best roots give nothing (the spread matches are collinear: every one of
-    their triplets is degenerate), every problem falls back, in passes of
-    `fallback_slots(B)` problems: the outcome is the whole mixed algorithm's, which finds
-    the pose from the other triplets. (The programs of the test above: same shapes.)"""
+    their triplets is degenerate) and no wider rung is asked for, every problem falls
+    back, in passes of `fallback_slots(B)` problems: the outcome is the whole mixed
+    algorithm's, which finds the pose from the other triplets."""
     C, M, I = _collinear_spread(12, seed=4)
     chosen = np.asarray(spread_matches(jnp.asarray(I), jnp.ones((12, 7), bool), 4))
     assert np.all(np.sort(chosen, axis=1) == [0, 1, 2, 3])  # the line's four
     assert fallback_slots(12) == 1  # twelve passes
-    quick, full = _many(4)(C, M, I), _many(None)(C, M, I)
+    quick, full = _many(4, None)(C, M, I), _many(None)(C, M, I)
     assert np.all(np.asarray(full.accepted))
     # every answer comes from a triplet the best roots never tried (one off the line)
     assert np.all(np.max(np.asarray(quick.triplet), axis=1) >= 4)
