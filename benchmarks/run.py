@@ -129,6 +129,32 @@ def print_speed(res: dict, console) -> None:
                 f"{row['compile_s']:.1f} s",
             )
         console.print(b)
+    cl = res.get("classes")
+    if cl:
+        small, large = cl["sizes"]
+        c = Table(title="Problem classes: solve_pnp_batch (defaults) vs the SQPnP + RefineLM loop")
+        for col in (
+            "class",
+            f"per problem, B = {small}",
+            f"per problem, B = {large}",
+            "growth",
+            "loop per problem",
+            f"ratio, B = {large}",
+            "at optimum",
+        ):
+            c.add_column(col, justify="right")
+        for kind, row in cl["classes"].items():
+            lo, hi = row[str(small)], row[str(large)]
+            c.add_row(
+                kind,
+                f"{lo['per_problem_us']:.1f} us",
+                f"{hi['per_problem_us']:.1f} us",
+                f"{row['growth']:.2f}x",
+                f"{row['opencv_us']:.0f} us",
+                times_faster(hi["vs_opencv"], 2),
+                f"{100 * min(lo['at_optimum'], hi['at_optimum']):.2f}%",
+            )
+        console.print(c)
     mem = res.get("batch_memory")
     if mem:
         if "failed" in mem:

@@ -20,6 +20,14 @@ Every target of `TARGETS` is measured by one section and compared in `targets(re
   `cv2.solvePnPRefineLM` over the same problems (`batch_vs_loop` at the largest B), the
   share of problems at the ML optimum (`batch_at_optimum`), and the peak resident memory
   of a fresh process making that call (`batch_peak_mb`, `_speed_workers.py`).
+- `classes`: the same call and loop on each problem class of the accuracy protocol
+  (`ordinary`, `quasi_singular`, `planar`: `jaxpose.apps.random_scene`, n = 16, 1 px)
+  and on the bench's own model at random poses (`bench_model`: its 16 matched vertices,
+  a uniform random attitude 1.5-2.5 m in front of its camera, 0.7 px), at two batch
+  sizes: the least ratio over the classes at the larger (`classes_vs_loop`), the least
+  share at the ML optimum (`classes_at_optimum`), and the largest growth of the time per
+  problem from the smaller batch to the larger (`classes_growth`): a batch costs what
+  its problems cost, not what its rarest problem costs.
 - `p3p`: the component-form three-point kernel
   (`jaxpose.solvers._kernel_p3p.three_point_batch`), amortised per triplet (`p3p_ns`),
   beside `cv2.solveP3P` and `poselib.p3p` called per triplet.
@@ -74,6 +82,13 @@ TARGETS = {
     ),
     "batch_at_optimum": Target(0.999, True, "%", "those problems at the ML optimum"),
     "batch_peak_mb": Target(1024.0, False, "MB", "peak RSS of a process making that call"),
+    "classes_vs_loop": Target(
+        8.0, True, "x", "the same on every problem class (the least), B = 10^4"
+    ),
+    "classes_at_optimum": Target(0.999, True, "%", "those problems at the ML optimum (least)"),
+    "classes_growth": Target(
+        1.2, False, "x", "time per problem, B = 10^4 over B = 2,000 (the largest)"
+    ),
     "latency_bench_ms": Target(1.5, False, "ms", "solve_pnp (defaults), the bench, n = 16"),
     "latency_vs_lean_opencv": Target(60.0, True, "x", "the same vs the lean OpenCV loop"),
     "latency_n54_ms": Target(2.0, False, "ms", "solve_pnp, n = 54, planar 9 x 6 grid"),
@@ -98,11 +113,14 @@ class Sizes:
     batch_repeat: int
     p3p: int
     linear: int
+    classes: tuple[int, int] = (2000, 10_000)
     memory: bool = True
 
 
 FULL = Sizes(repeat=50, batch=(1, 10, 100, 1000, 10_000), batch_repeat=7, p3p=100_000, linear=8000)
-QUICK = Sizes(repeat=20, batch=(100, 1000), batch_repeat=3, p3p=20_000, linear=8000)
+QUICK = Sizes(
+    repeat=20, batch=(100, 1000), batch_repeat=3, p3p=20_000, linear=8000, classes=(200, 1000)
+)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -352,6 +370,81 @@ def batch(sizes: Sequence[int], repeat: int, seed: int = 1) -> list[dict]:
     return rows
 
 
+#: The problem classes of `classes`: the accuracy protocol's and the bench's own model.
+CLASSES = ("ordinary", "quasi_singular", "planar", "bench_model")
+
+
+def class_problems(kind: str, count: int, seed: int = 1):
+    """`count` problems of class `kind` (see `CLASSES` and the module docstring), OpenCV's
+    convention: `(K, obj (B, 16, 3), img (B, 16, 2))`."""
+    rng = np.random.default_rng(seed)
+    if kind != "bench_model":
+        scenes = [
+            jp.apps.random_scene(rng, 16, noise=1.0, kind=kind, world_camera=False)
+            for _ in range(count)
+        ]
+        obj = np.stack([sc.model_points for sc in scenes])
+        return K_PIXELS, obj, np.stack([sc.image_points for sc in scenes])
+    bench = jp.apps.default_bench()
+    K, M = bench.K, bench.model_points - bench.model_points.mean(axis=0)
+    R = random_rotations(rng, count)
+    t = np.column_stack(
+        [
+            rng.uniform(-200, 200, count),
+            rng.uniform(-150, 150, count),
+            rng.uniform(1500, 2500, count),
+        ]
+    )
+    pc = np.einsum("bij,nj->bni", R, M) + t[:, None]
+    uv = pc[..., :2] / pc[..., 2:] * K[0, 0] + K[:2, 2]
+    img = uv + rng.normal(scale=bench.noise, size=uv.shape)
+    return K, np.broadcast_to(M, (count, *M.shape)).copy(), img
+
+
+def classes(sizes: tuple[int, int], repeat: int, seed: int = 1) -> dict:
+    """`solve_pnp_batch` with its defaults on each class of `CLASSES` at the two batch
+    sizes (the first problems of one draw), beside the SQPnP + RefineLM loop (its time
+    per problem: the best of loops over blocks of 100 problems, as in `batch`)."""
+    small, large = sizes
+    out = {}
+    for kind in CLASSES:
+        K, obj, img = class_problems(kind, large, seed=seed)
+        ref = np.array(
+            [_rms(obj[i], img[i], K, *sqpnp_lm(obj[i], img[i], K)) for i in range(large)]
+        )
+        count = min(100, large)
+        starts = iter(range(0, large - count + 1, count))
+        blocks = timeit(
+            lambda: opencv_block(obj, img, K, next(starts), count),
+            warmup=0,
+            repeat=min(20, large // count),
+            block=False,
+        )
+        per_cv = blocks.best / count
+        row: dict = {"opencv_us": 1e6 * per_cv}
+        for B in (small, large):
+            call = timeit(jp.solve_pnp_batch, obj[:B], img[:B], K, warmup=2, repeat=repeat)
+            ok, rvecs, tvecs = call.result
+            err = np.array([_rms(obj[i], img[i], K, rvecs[i], tvecs[i]) for i in range(B)])
+            row[str(B)] = {
+                "jaxpose_s": call.best,
+                "compile_s": _compile(call),
+                "per_problem_us": 1e6 * call.best / B,
+                "vs_opencv": per_cv * B / call.best,
+                "at_optimum": float(np.mean(at_optimum(err, ref[:B]))),
+                "ok": float(np.mean(ok)),
+            }
+        row["growth"] = row[str(large)]["per_problem_us"] / row[str(small)]["per_problem_us"]
+        out[kind] = row
+        print(
+            f"  {kind}: {row[str(large)]['vs_opencv']:.1f}x the loop at B = {large}, "
+            f"{100 * row[str(large)]['at_optimum']:.2f}% at the optimum, "
+            f"{row['growth']:.2f}x per problem from B = {small}",
+            flush=True,
+        )
+    return {"sizes": [small, large], "classes": out}
+
+
 def batch_memory(B: int, seed: int = 1, timeout: float = 1800) -> dict:
     """The peak resident memory of a fresh process making the `batch` call over `B`
     problems (`benchmarks/_speed_workers.py`); `{"failed": why}` when it did not finish."""
@@ -463,12 +556,37 @@ def _figures(res: dict) -> dict:
     bench = lat.get("bench") or {}
     p, q, ls = res.get("paper") or {}, res.get("p3p") or {}, res.get("linear_step") or {}
     loop = f"SQPnP + RefineLM loop, B = {bt.get('B')}"
+    cl = res.get("classes") or {}
+    rows = cl.get("classes") or {}
+    large = str(max(cl.get("sizes") or [0]))
+
+    def least(key):
+        values = [r[large][key] for r in rows.values() if large in r]
+        if not values:
+            return None, None
+        kind = min(rows, key=lambda k: rows[k][large][key])
+        return min(values), kind
+
+    vs, vs_kind = least("vs_opencv")
+    opt, _ = least("at_optimum")
+    growth = max((r["growth"] for r in rows.values()), default=None)
+    # (the first class's first call compiles the programs; the others load them)
+    compiled = max((r[large].get("compile_s") or 0.0 for r in rows.values()), default=None)
     sqlm = "SQPnP + RefineLM"
     cv_ms = pe.get("opencv_loop_ms")
     return {
         "batch_vs_loop": (bt.get("vs_opencv"), loop, bt.get("opencv_s"), "s", bt.get("compile_s")),
         "batch_at_optimum": (bt.get("at_optimum"), None, None, None, bt.get("compile_s")),
         "batch_peak_mb": (mem.get("peak_mb"), None, None, None, mem.get("compile_s")),
+        "classes_vs_loop": (
+            vs,
+            f"SQPnP + RefineLM loop on {vs_kind}",
+            rows[vs_kind]["opencv_us"] if vs_kind else None,
+            "us",
+            compiled,
+        ),
+        "classes_at_optimum": (opt, None, None, None, compiled),
+        "classes_growth": (growth, None, None, None, compiled),
         "latency_bench_ms": (
             bench.get("ms"),
             sqlm,
@@ -552,6 +670,7 @@ SECTIONS = (
     "latency",
     "batch",
     "batch_memory",
+    "classes",
     "p3p",
     "linear_step",
 )
@@ -577,6 +696,8 @@ def run(quick: bool = False, sections: Sequence[str] = SECTIONS, sizes: Sizes | 
         res["batch"] = batch(s.batch, s.batch_repeat)
     if "batch_memory" in sections and s.memory:
         res["batch_memory"] = batch_memory(max(s.batch))
+    if "classes" in sections:
+        res["classes"] = classes(s.classes, s.batch_repeat)
     # (The kernels' calls take milliseconds: more repeats, for a steadier least time.)
     if "p3p" in sections:
         res["p3p"] = p3p(s.p3p, s.repeat // 2)

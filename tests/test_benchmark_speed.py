@@ -55,6 +55,27 @@ def _stand_ins() -> dict:
                 "at_optimum": 0.9995,
             }
         ],
+        "classes": {
+            "sizes": [200, 1000],
+            "classes": {
+                kind: {
+                    "opencv_us": 100.0,
+                    "growth": 1.1 + 0.1 * k,
+                    **{
+                        str(B): {
+                            "jaxpose_s": B * 2e-5,
+                            "compile_s": 20.0,
+                            "per_problem_us": 20.0,
+                            "vs_opencv": 5.0 + k,
+                            "at_optimum": 1.0 - 0.0005 * k,
+                            "ok": 1.0,
+                        }
+                        for B in (200, 1000)
+                    },
+                }
+                for k, kind in enumerate(speed.CLASSES)
+            },
+        },
         "batch_memory": {
             "B": 1000,
             "peak_mb": 700.0,
@@ -92,6 +113,11 @@ def test_cheap_sections_and_the_targets_table():
     assert T["latency_n54_ms"]["verdict"] == "missed by 1.2x"
     assert T["paper_ms"]["peer_figure"] == 60.0 and T["batch_vs_loop"]["peer_figure"] == 0.1
     assert T["linear_step_ns"]["peer"] is None
+    # the least ratio and share over the classes, the largest growth
+    assert T["classes_vs_loop"]["figure"] == 5.0 and not T["classes_vs_loop"]["met"]
+    assert T["classes_vs_loop"]["peer"] == "SQPnP + RefineLM loop on ordinary"
+    assert T["classes_at_optimum"]["figure"] == 1.0 - 0.0015
+    assert T["classes_growth"]["figure"] == 1.1 + 0.3 and not T["classes_growth"]["met"]
 
     res["targets"], res["machine"] = T, {"cpu": "test cpu", "cores": 2}
     out = io.StringIO()
@@ -103,6 +129,8 @@ def test_cheap_sections_and_the_targets_table():
         "three-point kernel:",
         "linear step kernel",
         "Batches: n = 16",
+        "Problem classes",
+        "bench_model",
         "<= 1.5 ms",
         ">= 60x",
         ">= 99.9%",

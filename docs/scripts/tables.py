@@ -43,6 +43,7 @@ from tables_speed import (  # noqa: E402
     scale_n,
     speed,
     speed_batch,
+    speed_classes,
     speed_phases,
     startup,
 )
@@ -169,6 +170,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "speed": speed,
     "speed_phases": speed_phases,
     "speed_batch": speed_batch,
+    "speed_classes": speed_classes,
     "startup": startup,
     "scale_n": scale_n,
     "scale_batch": scale_batch,

@@ -127,6 +127,54 @@ def speed_batch(results: Path) -> str:
     )
 
 
+def speed_classes(results: Path) -> str:
+    """`solve_pnp_batch` on each problem class at two batch sizes (the `classes`
+    section of `benchmarks/speed.py`)."""
+    d, name = load(results, "speed.json", "speed_quick.json")
+    if "classes" not in d:
+        raise Missing(f"the `classes` section in `benchmarks/results/{name}`")
+    small, large = d["classes"]["sizes"]
+    T = d["targets"]
+    rows = []
+    for kind, r in d["classes"]["classes"].items():
+        lo, hi = r[str(small)], r[str(large)]
+        rows.append(
+            (
+                kind.replace("_", " "),
+                duration(1e-6 * lo["per_problem_us"]),
+                duration(1e-6 * hi["per_problem_us"]),
+                f"{r['growth']:.2f}x",
+                duration(1e-6 * r["opencv_us"]),
+                f"{hi['vs_opencv']:.2f}x",
+                share(min(lo["at_optimum"], hi["at_optimum"])),
+            )
+        )
+    header = (
+        "class",
+        f"per problem, B = {small:,}",
+        f"per problem, B = {large:,}",
+        "growth",
+        "OpenCV loop, per problem",
+        f"ratio at B = {large:,}",
+        "at the ML optimum",
+    )
+    note = (
+        "`solve_pnp_batch` with its default options on each problem class of the accuracy "
+        "protocol (n = 16, 1 px) and on the bench's own model at random poses (its 16 "
+        "matched vertices, 0.7 px), against the loop of `cv2.solvePnP` (SQPNP) and "
+        "`solvePnPRefineLM` over the same problems. Growth: the time per problem at the "
+        f"larger batch over the smaller (target <= {T['classes_growth']['target']:g}x); "
+        f"ratio target >= {T['classes_vs_loop']['target']:g}x on every class."
+    )
+    return (
+        note
+        + "\n\n"
+        + table(header, rows)
+        + "\n\n"
+        + caption(d, name, command=_run_command(d, "speed"))
+    )
+
+
 # ----------------------------------------------------------------------------- scaling
 
 

@@ -198,6 +198,14 @@ def _linear_block(R: Mat3, t: Vec3, matches: Matches, iterations: int) -> Linear
     return LinearResult(Pose(mat_to_array(R), vec_to_array(t)), error, step, status)
 
 
+def linear_from(obs: Observations, pose: Pose, iterations: int) -> LinearResult:
+    """The linear method in production (`linear_kernel`) from `pose` on `obs`, one
+    problem or a batch (the same leading axes): the values of
+    `jaxpose.solvers.linear(obs, pose, iterations=iterations)`, its reference."""
+    m = matches_from_observations(obs)
+    return _linear_block(mat_from_array(pose.R), vec_from_array(pose.t), m, iterations)
+
+
 def linear_all(obs: Observations, poses: Pose, iterations: int) -> LinearResult:
     """Step 2: the linear method from every triplet's pose of every problem (`(B, T)`),
     the values of `linear(obs[b], poses[b, k], iterations=iterations)` computed by the

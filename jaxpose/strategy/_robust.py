@@ -29,10 +29,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._pose import Observations, Pose, observations, transform
-from ..solvers._linear import linear
 from ..solvers._nonlinear import nonlinear
 from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
 from ..solvers._status import Status
+from ._mixed import linear_from
 from ._options import RobustOptions, resolve
 from ._triplets import triplet_indices, triplet_roots
 
@@ -142,7 +142,7 @@ def robust(
     for _ in range(options.rounds if options.refine != "none" else 0):
         local = obs._replace(mask=inliers)
         if options.refine == "linear":
-            res = linear(local, pose, iterations=options.iterations)
+            res = linear_from(local, pose, options.iterations)
         else:
             res = nonlinear(local, pose, max_steps=options.max_steps)
         new_inliers, new_num, new_score = _score(obs, res.pose, thr)
