@@ -145,3 +145,18 @@ def test_cycle_detection_works():
     graph = import_graph()
     assert "jaxpose.geometry._camera" in graph["jaxpose.geometry"]
     assert "jaxpose.geometry._camera" in graph["jaxpose.solvers._p3p"]
+
+
+def test_the_api_uses_the_lower_layers_public_names():
+    """The entry points (`jaxpose.api`) are adapters: they import the geometry, solvers
+    and strategy layers through their packages' public names only, never a private
+    module of theirs."""
+    lower = {"jaxpose." + layer for layer in LAYERS[: LAYERS.index("api")]}
+    private = []
+    for module, targets in import_graph().items():
+        if _layer(module) != LAYERS.index("api"):
+            continue
+        for target in targets:
+            if any(target.startswith(package + ".") for package in lower):
+                private.append(f"{module} -> {target}")
+    assert not private, "private imports from below: " + ", ".join(sorted(private))

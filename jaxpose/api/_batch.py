@@ -33,7 +33,7 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ..geometry._validate import no_type_check
+from ..geometry import no_type_check
 from ._programs import Program, program_name
 
 __all__ = ["batch_mesh", "batch_devices", "run_batched"]

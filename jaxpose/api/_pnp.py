@@ -21,21 +21,21 @@ import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
 
-from ..geometry._camera import camera_matrix, undistort_pixels
-from ..geometry._distortion import COEFFICIENTS, refine_in_image
-from ..geometry._rotation import matrix_to_rotvec
-from ..geometry._validate import (
+from ..geometry import (
+    COEFFICIENTS,
     as_dist_coeffs,
     as_intrinsics,
     as_matching,
     as_point_batch,
     as_points,
+    camera_matrix,
+    matrix_to_rotvec,
     no_type_check,
+    refine_in_image,
+    undistort_pixels,
 )
-from ..solvers._status import Status
-from ..strategy import escalation
-from ..strategy._options import Options, RobustOptions, resolve
-from ..strategy._robust import robust
+from ..solvers import Status
+from ..strategy import Options, RobustOptions, escalation, resolve, robust, rung_applies
 from ._batch import run_batched
 from ._programs import bucket_points, program
 from ._solve import solve, solve_many
@@ -227,6 +227,8 @@ def solve_pnp(
         for k, rung in enumerate(rungs[1:], start=2):
             if out[0]:
                 break
+            if not rung_applies(rung, mask.sum()):
+                continue
             again = np.array(program(_solve_opencv, rung)(packed))
             if again[0] or k == len(rungs):  # the last rung's answer stands
                 out = again
@@ -296,9 +298,9 @@ def solve_pnp_batch(
 
         ok, rvecs, tvecs = run(obj, img, mask, rungs[0], CHUNK)
         for k, rung in enumerate(rungs[1:], start=2):
-            need = np.flatnonzero(~np.asarray(ok))
+            need = np.flatnonzero(~np.asarray(ok) & rung_applies(rung, mask.sum(axis=1)))
             if not need.size:
-                break
+                continue
             # the problems the rungs before did not settle
             redo = run(obj[need], img[need], mask[need], rung, FALLBACK_CHUNK)
             keep = np.ones(need.size, bool) if k == len(rungs) else np.asarray(redo[0])

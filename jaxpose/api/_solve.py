@@ -5,51 +5,18 @@ devices). The OpenCV-convention ones are in `jaxpose.api._pnp`."""
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
+from jaxtyping import ArrayLike, Bool, Real
 
-from ..geometry._errors import pose_error
-from ..geometry._pose import Observations, Pose, observations, transform
-from ..geometry._validate import as_batched, check_problem, no_type_check
-from ..solvers._residuals import pixel_residuals, rms
-from ..solvers._status import Status
-from ..strategy._best import Answer, answer, answer_batch, settle_batch
-from ..strategy._implicit import polish
-from ..strategy._jobs import CHUNK
-from ..strategy._methods import per_triplet
-from ..strategy._mixed import mixed_from_initial, mixed_from_initial_batch
-from ..strategy._options import METHODS as METHODS
-from ..strategy._options import Options, resolve
-from ..strategy._triplets import best_triplet, initial_poses, select_triplets, triplet_count
+from ..geometry import as_batched, check_problem, no_type_check
+from ..strategy import METHODS as METHODS
+from ..strategy import Options, Solution, resolve, solve_problems
 from ._batch import run_batched
 
 __all__ = ["METHODS", "Solution", "solve", "solve_batch", "solve_many"]
-
-
-class Solution(NamedTuple):
-    """The answer to one pose problem.
-
-    **Fields:**
-    - `pose`: `Pose(R, t)` mapping model to world, `p = R m + t` (a finite placeholder,
-      the identity, when nothing was found at all).
-    - `error`: Eq. 8 reprojection error (px).
-    - `pose_error`: the paper's pose error (model units, e.g. mm).
-    - `status`: `Status` code of the answer (`Status(int(status)).message`).
-    - `accepted`: whether a pose was accepted (`ok` of `solve_pnp`).
-    - `triplet`: the three matches (indices into `model`) of the triplet whose
-      three-point root led to the answer, `(3,)` int32.
-    """
-
-    pose: Pose
-    error: Float[Array, ""]
-    pose_error: Float[Array, ""]
-    status: Int[Array, ""]
-    accepted: Bool[Array, ""]
-    triplet: Int[Array, " 3"]
 
 
 # The entry points check their arguments themselves (`check_problem`, `as_batched`: a
@@ -67,8 +34,15 @@ def solve(
     """Recover the pose of a known object from one calibrated image (JAX-native).
 
     Pure, for ONE problem: composes with `jax.jit`, `jax.vmap` (batch the arrays) and
-    `jax.grad`. All triplets of matches are solved at once; the answer is the accepted
-    triplet pose of lowest Eq. 8 error (see `jaxpose.mixed` for the algorithm).
+    `jax.grad`; the pipeline (`jaxpose.strategy.solve_problems`) on a batch of one.
+    By default (the mixed method with `refine=2`): the three-point roots of the triplets
+    of the 4 matches farthest apart in the image are scored by their Eq. 8 error over all
+    matches, the linear method runs from the 2 best distinct ones, and the best accepted
+    pose is polished to the Eq. 8 optimum. Where none is accepted the problem escalates
+    (`jaxpose.strategy.escalation`): the best roots of the triplets of 12 spread matches,
+    then the paper's whole mixed algorithm over every triplet (`jaxpose.mixed`).
+    `refine=None` runs the whole mixed algorithm from the start; `method=` one of the
+    paper's single methods, from every triplet.
 
     **Arguments:**
     - `camera`: the 3x4 projection matrix `C`, calibrated in the world frame.
@@ -98,24 +72,14 @@ def solve(
     """
     options = resolve(options, changes)
     check_problem(camera, model, image, mask)
-    camera, model, image, finite = _finite_inputs(camera, model, image)
-    obs = observations(camera, model, image, mask)
-    sobs = jax.lax.stop_gradient(obs)
-    if options.method == "mixed" and options.refine is not None:
-        found = answer(sobs, options)
-        if not options.derivative:
-            one = jax.tree.map(lambda a: a[None], (sobs, found))
-            found = jax.tree.map(lambda a: a[0], settle_batch(*one))
-        return _not_finite(_finish_answer(obs, found, options.derivative), finite)
-    initial = _initial(obs, options)
-    if options.method == "mixed":
-        res = mixed_from_initial(sobs, initial, options=options)
-        found = (res.pose, res.error, res.status)
-    else:
-        one = jax.tree.map(lambda a: a[None], (sobs, initial))
-        found = jax.tree.map(lambda a: a[0], per_triplet(*one, options))
-    finish = functools.partial(_finish, options.method, derivative=options.derivative)
-    return _not_finite(finish(obs, initial.triplets, *found), finite)
+    one = solve_problems(
+        camera,
+        jnp.asarray(model)[None],
+        jnp.asarray(image)[None],
+        None if mask is None else jnp.asarray(mask)[None],
+        options,
+    )
+    return jax.tree.map(lambda a: a[0], one)
 
 
 @no_type_check
@@ -132,47 +96,17 @@ def solve_many(
     `jax.vmap(solve)`, computed batch-first. `camera` is `(3, 4)`, one camera for every
     problem (`jax.vmap(solve, in_axes=(None, 0, 0, 0))`), or `(B, 3, 4)`, one per problem.
 
-    The difference is the cost: under a plain `vmap`, every problem pays for the mixed
-    algorithm's full Levenberg-Marquardt buffer (`vmap` turns its "only when needed" into
-    "always"); here the triplets of the whole batch that need it share one buffer
-    (`jaxpose.strategy.mixed_from_initial_batch`), and the cheap steps run in cache-sized passes.
-    Arguments as `solve` (`model`, `image`, `mask` with a leading batch axis); pure, for
-    `jit` and `grad`.
+    It is the pipeline itself (`jaxpose.strategy.solve_problems`). The difference from
+    a plain `vmap` is the cost: under `vmap`, every problem pays for every rung of the
+    escalation and the mixed algorithm's full Levenberg-Marquardt buffer (`vmap` turns
+    "only when needed" into "always"); here each rung runs only for the problems that
+    need it, gathered a few at a time, the triplets that need Levenberg-Marquardt share
+    one buffer, and the cheap steps run in cache-sized passes. Arguments as `solve`
+    (`model`, `image`, `mask` with a leading batch axis); pure, for `jit` and `grad`.
     """
     options = resolve(options, changes)
     _check_many(camera, model, image, mask)
-    B = jnp.shape(model)[0]
-    shared = None if jnp.ndim(camera) == 2 else 0
-    camera, model, image, finite = jax.vmap(_finite_inputs, in_axes=(shared, 0, 0))(
-        camera, model, image
-    )
-    if mask is None:
-        # (The barrier keeps XLA from constant-folding the all-true mask through the
-        # triplet gathers, which costs seconds of compile time for nothing.)
-        mask = jax.lax.optimization_barrier(jnp.ones(model.shape[:2], dtype=bool))
-    obs = jax.vmap(observations)(camera, model, image, mask)
-    if options.method == "mixed" and options.refine is not None:
-        found = answer_batch(jax.lax.stop_gradient(obs), options)
-        if not options.derivative:
-            found = settle_batch(jax.lax.stop_gradient(obs), found)
-        finish = functools.partial(_finish_answer, derivative=options.derivative)
-        return jax.vmap(_not_finite)(jax.vmap(finish)(obs, found), finite)
-    T = triplet_count(model.shape[1], options)
-    initial = jax.lax.map(
-        lambda o: _initial(o, options), obs, batch_size=max(1, min(B, CHUNK // T))
-    )
-    sobs = jax.lax.stop_gradient(obs)
-    if options.method == "mixed":
-        res = mixed_from_initial_batch(sobs, initial, options=options)
-        found = (res.pose, res.error, res.status)
-    else:
-        found = per_triplet(sobs, initial, options)
-    return jax.vmap(_not_finite)(
-        jax.vmap(functools.partial(_finish, options.method, derivative=options.derivative))(
-            obs, initial.triplets, *found
-        ),
-        finite,
-    )
+    return solve_problems(camera, model, image, mask, options)
 
 
 def _check_many(camera, model, image, mask) -> None:
@@ -203,101 +137,6 @@ def _check_many(camera, model, image, mask) -> None:
         item(model),
         item(image),
         item(mask),
-    )
-
-
-def _finite_inputs(camera, model, image):
-    """The problem with its non-finite values replaced by harmless finite ones (the
-    camera by `[I | 0]`, points by zeros), and whether it had none: the solvers then run
-    on finite numbers, and `_not_finite` reports the problem. (Non-finite values of
-    masked-out matches count too: padding should be finite.)"""
-    camera = jnp.asarray(camera)
-    if not jnp.issubdtype(camera.dtype, jnp.floating):
-        camera = camera.astype(jnp.result_type(float))
-    model = jnp.asarray(model, camera.dtype)
-    image = jnp.asarray(image, camera.dtype)
-    finite_camera = jnp.all(jnp.isfinite(camera))
-    finite = finite_camera & jnp.all(jnp.isfinite(model)) & jnp.all(jnp.isfinite(image))
-    camera = jnp.where(finite_camera, camera, jnp.eye(3, 4, dtype=camera.dtype))
-    model = jnp.where(jnp.isfinite(model), model, 0)
-    image = jnp.where(jnp.isfinite(image), image, 0)
-    return camera, model, image, finite
-
-
-def _not_finite(sol: Solution, finite) -> Solution:
-    """`sol`, or when the input held non-finite values, the placeholder answer: identity
-    pose, zero errors, not accepted, status `NOT_FINITE` (and a zero gradient)."""
-    dtype = sol.error.dtype
-
-    def pick(a, b):
-        return jnp.where(finite, a, jnp.asarray(b, a.dtype))
-
-    return Solution(
-        pose=Pose(pick(sol.pose.R, jnp.eye(3, dtype=dtype)), pick(sol.pose.t, 0)),
-        error=pick(sol.error, 0),
-        pose_error=pick(sol.pose_error, 0),
-        status=pick(sol.status, Status.NOT_FINITE),
-        accepted=sol.accepted & finite,
-        triplet=jnp.where(finite, sol.triplet, jnp.arange(3, dtype=sol.triplet.dtype)),
-    )
-
-
-def _initial(obs: Observations, options: Options):
-    """Step 1: the triplets of `select_triplets` and their best three-point roots (no
-    gradient)."""
-    sobs = jax.lax.stop_gradient(obs)
-    _, triplets = select_triplets(sobs, options)
-    return initial_poses(sobs, options=options, triplets=triplets)
-
-
-def _finish(
-    method,
-    obs: Observations,
-    triplets,
-    poses: Pose,
-    error,
-    status,
-    derivative: bool = True,
-    polished: bool = False,
-) -> Solution:
-    """The answer from every triplet's outcome: the best accepted, polished (with the
-    implicit derivative attached) for the optimising methods unless `polished` (values
-    only, finished by `settle_batch`)."""
-    dtype = obs.camera.dtype
-    big = jnp.finfo(dtype).max
-    index, accepted = best_triplet(error, status)
-    pose = Pose(poses.R[index], poses.t[index])
-    pose = jax.tree.map(lambda a, b: jnp.where(accepted, a, b), pose, Pose.identity(dtype))
-    error = jnp.where(accepted, error[index], jnp.where(error[index] < big, error[index], 0))
-    if method != "three_point":
-        if not polished:
-            pose = polish(obs, pose, accepted, derivative)
-        final = rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
-        error = jnp.where(accepted, final, error)
-    return Solution(
-        pose=pose,
-        error=error,
-        pose_error=pose_error(obs.camera, pose.R, pose.t, obs.model, obs.image, obs.mask),
-        status=status[index].astype(jnp.int32),
-        accepted=accepted,
-        triplet=triplets[index].astype(jnp.int32),
-    )
-
-
-def _finish_answer(obs: Observations, found: Answer, derivative: bool = True) -> Solution:
-    """`_finish` for a problem whose answer is already chosen (`jaxpose.strategy.answer`);
-    `derivative=False`: the answer is already settled (`settle_batch`), not polished
-    again."""
-    pose = Pose(found.pose.R[None], found.pose.t[None])
-    return _finish(
-        "mixed",
-        obs,
-        found.triplet[None],
-        pose,
-        found.error[None],
-        found.status[None],
-        derivative,
-        polished=not derivative,
     )
 
 

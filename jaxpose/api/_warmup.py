@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..strategy._options import Options
+from ..strategy import Options
 from ._pnp import CHUNK, _batched_opencv, _pack, _pad_points, _solve_opencv, _stages
 from ._programs import POINT_BUCKETS, Program, bucket_points, program
 

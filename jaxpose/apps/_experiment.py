@@ -132,9 +132,9 @@ def _four_methods(camera, model, image, threshold):
     `jaxpose.api._programs`, so that a second run loads it)."""
     obs = observations(camera, model, image)
     initial = initial_poses(obs, options=_EVERY_TRIPLET)
-    one = jax.tree.map(lambda a: a[None], (obs, initial))
+    obs1, initial1 = jax.tree.map(lambda a: a[None], (obs, initial))
     runs = {
-        method: jax.tree.map(lambda a: a[0], run_method(method, *one, _EVERY_TRIPLET))
+        method: jax.tree.map(lambda a: a[0], run_method(method, obs1, initial1, _EVERY_TRIPLET))
         for method in ("linear", "nonlinear")
     }
     mix = mixed_from_initial(obs, initial, threshold=threshold, options=_EVERY_TRIPLET)

@@ -12,6 +12,7 @@ from ._camera import project as project
 from ._camera import project_with_depth as project_with_depth
 from ._camera import ray_planes as ray_planes
 from ._camera import undistort_pixels as undistort_pixels
+from ._distortion import COEFFICIENTS as COEFFICIENTS
 from ._distortion import distort as distort
 from ._distortion import project_points as project_points
 from ._distortion import refine_in_image as refine_in_image
@@ -38,3 +39,12 @@ from ._rotation import rotation_angle as rotation_angle
 from ._rotation import rotation_distance as rotation_distance
 from ._rotation import rotvec_to_matrix as rotvec_to_matrix
 from ._rotation import rotvec_to_quaternion as rotvec_to_quaternion
+from ._validate import as_batched as as_batched
+from ._validate import as_camera as as_camera
+from ._validate import as_dist_coeffs as as_dist_coeffs
+from ._validate import as_intrinsics as as_intrinsics
+from ._validate import as_matching as as_matching
+from ._validate import as_point_batch as as_point_batch
+from ._validate import as_points as as_points
+from ._validate import check_problem as check_problem
+from ._validate import no_type_check as no_type_check

@@ -12,6 +12,7 @@ from ._best import answer_batch as answer_batch
 from ._best import best_of_roots as best_of_roots
 from ._best import best_of_roots_batch as best_of_roots_batch
 from ._best import escalation as escalation
+from ._best import rung_applies as rung_applies
 from ._best import spread_matches as spread_matches
 from ._covariance import PoseCovariance as PoseCovariance
 from ._covariance import pose_covariance as pose_covariance
@@ -22,8 +23,12 @@ from ._mixed import MixedResult as MixedResult
 from ._mixed import mixed as mixed
 from ._mixed import mixed_from_initial as mixed_from_initial
 from ._mixed import mixed_from_initial_batch as mixed_from_initial_batch
+from ._options import METHODS as METHODS
 from ._options import Options as Options
 from ._options import RobustOptions as RobustOptions
+from ._options import resolve as resolve
+from ._pipeline import Solution as Solution
+from ._pipeline import solve_problems as solve_problems
 from ._robust import RobustResult as RobustResult
 from ._robust import robust as robust
 from ._triplets import Initial as Initial

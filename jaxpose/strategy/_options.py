@@ -126,6 +126,10 @@ class Options:
       mixed algorithm only for a problem where none of them is accepted
       (`jaxpose.strategy.best_of_roots`; default `2`); `None`: the whole mixed algorithm
       over every triplet for every problem.
+    - `refine_with`: how those roots are refined: `"linear"` (default: the linear
+      method, accepted as the mixed algorithm's step 2 accepts) or `"mixed"` (the mixed
+      algorithm's steps 2-4: Levenberg-Marquardt where the linear method does not reach
+      an accepted pose; the escalation's middle rung).
     - `spread_points`: the roots scored for `refine` are those of the `C(k, 3)` triplets
       of the `k` matches farthest apart in the image (`jaxpose.strategy.spread_matches`;
       default `4`: 4 triplets); `None`: the triplets `max_triplets` and
@@ -160,6 +164,7 @@ class Options:
     max_triplets: int | None = 2000
     triplet_budget: int | None = None
     refine: int | None = 2
+    refine_with: str = "linear"
     spread_points: int | None = 4
     fallback: bool = True
     wider_spread: int | None = 12
@@ -182,6 +187,7 @@ class Options:
         _check_int("max_triplets", self.max_triplets, 1, optional=True)
         _check_int("triplet_budget", self.triplet_budget, 1, optional=True)
         _check_int("refine", self.refine, 1, optional=True)
+        _check_choice("refine_with", self.refine_with, ("linear", "mixed"))
         _check_int("spread_points", self.spread_points, 3, optional=True)
         _check_int("wider_spread", self.wider_spread, 3, optional=True)
         _check_int("chunk", self.chunk, 1, optional=True)

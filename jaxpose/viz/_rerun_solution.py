@@ -35,10 +35,9 @@ from ._rerun_scene import _log_camera_near, log_observations, log_pose
 if TYPE_CHECKING:  # pragma: no cover
     import rerun as rr
 
-    from ..api._solve import Solution
     from ..apps._polyhedron import Polyhedron
     from ..geometry._pose import Pose
-    from ..strategy import Initial
+    from ..strategy import Initial, Solution
 
 __all__ = ["log_solution", "log_triplets"]
 

@@ -1,6 +1,7 @@
 """The answer from the best-scored roots (`Options.refine`) against the whole mixed
 algorithm over every triplet (`refine=None`), and its fallback."""
 
+import dataclasses
 import functools
 
 import jax
@@ -16,6 +17,7 @@ from jaxpose.strategy._best import (
     distinct_best,
     escalation,
     fallback_slots,
+    rung_applies,
     spread_matches,
 )
 
@@ -55,10 +57,10 @@ def test_best_roots_reach_the_answer_of_every_triplet():
         assert jp.Status.is_success(q) == jp.Status.is_success(f)
 
 
-def _collinear_spread(B: int, seed: int, noise: float = 0.5):
-    """`B` problems of 7 matches (OpenCV's convention, `C = K [I | 0]`) whose four
-    matches farthest apart in the image (`spread_matches`) lie on one line: four points
-    on a 3D line, the other three off it near its ends."""
+def _collinear_spread(B: int, seed: int, noise: float = 0.5, inner: int = 0):
+    """`B` problems of `7 + inner` matches (OpenCV's convention, `C = K [I | 0]`) whose
+    four matches farthest apart in the image (`spread_matches`) lie on one line: four
+    points on a 3D line, three off it near its ends, `inner` off it near its middle."""
     rng = np.random.default_rng(seed)
     C = np.asarray(jp.camera_matrix(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])))
     M, I = [], []
@@ -71,7 +73,8 @@ def _collinear_spread(B: int, seed: int, noise: float = 0.5):
         centre = np.array([0.0, 0.0, 6.0])
         line = [centre + u * d for u in (-1.0, 0.0, 0.5, 1.0)]
         off = [centre + 0.9 * d + e[0], centre - 0.9 * d + e[1], centre + 0.85 * d + e[2]]
-        pc = np.array(line + off)  # camera frame
+        mid = [centre + rng.uniform(-0.4, 0.4) * d + e[k % 3] * 0.6 for k in range(inner)]
+        pc = np.array(line + off + mid)  # camera frame
         R = jp.geometry.rotvec_to_matrix(rng.normal(size=3))
         t = rng.normal(size=3)
         M.append((pc - t) @ np.asarray(R))  # pc = R m + t
@@ -84,10 +87,10 @@ def test_escalation_rungs():
     """The ladder: spread roots, wider roots, the whole algorithm; each rung a single
     rung; no ladder without the fallback, for `refine=None` or another method."""
     rungs = escalation(jp.Options())
-    assert [(r.spread_points, r.refine, r.fallback) for r in rungs] == [
-        (4, 2, False),
-        (12, 8, False),
-        (4, None, True),
+    assert [(r.spread_points, r.refine, r.refine_with, r.fallback) for r in rungs] == [
+        (4, 2, "linear", False),
+        (12, 8, "mixed", False),
+        (4, None, "linear", True),
     ]
     assert all(escalation(r) == (r,) for r in rungs)
     assert len(escalation(jp.Options(wider_spread=None))) == 2
@@ -102,14 +105,19 @@ def test_escalation_rungs():
 
 def test_wider_rung_settles_what_the_spread_roots_leave():
     """Where the spread matches are collinear (every one of their triplets degenerate),
-    the next rung, the best roots of the triplets of 12 spread matches (here all 7),
-    accepts every problem at the whole mixed algorithm's optimum, from triplets the first
-    rung never tried (one match off the line)."""
-    C, M, I = _collinear_spread(12, seed=4)
-    wider, full = _many(4)(C, M, I), _many(None)(C, M, I)
+    the next rung, the mixed algorithm's steps 2-4 from the best roots of the triplets
+    of 12 spread matches (of 13), accepts every problem at the whole mixed algorithm's
+    optimum, from triplets the first rung never tried (one match off the line); on 7
+    matches (no triplet left out) the problems skip it, to the whole algorithm."""
+    opts = jp.Options(spread_points=12, refine=8, refine_with="mixed", fallback=False)
+    assert escalation(jp.Options())[1] == dataclasses.replace(opts, derivative=True)
+    assert list(rung_applies(opts, np.array([7, 12, 13, 16]))) == [False, False, True, True]
+    C, M, I = _collinear_spread(12, seed=4, inner=6)
+    wider = jax.jit(lambda C, M, I: jp.solve_many(C, M, I, options=opts, derivative=False))
+    wider, full = wider(C, M, I), _many(None)(C, M, I)
     assert np.all(np.asarray(wider.accepted)) and np.all(np.asarray(full.accepted))
     assert np.all(np.max(np.asarray(wider.triplet), axis=1) >= 4)
-    assert np.all(np.asarray(wider.status) == jp.Status.ACCEPTED_LINEAR)
+    assert np.all(jp.Status.is_success(np.asarray(wider.status)))
     np.testing.assert_allclose(wider.error, full.error, rtol=1e-9)
     np.testing.assert_allclose(wider.pose.R, full.pose.R, atol=1e-9)
     np.testing.assert_allclose(wider.pose.t, full.pose.t, rtol=1e-6, atol=1e-6)
@@ -130,7 +138,8 @@ def test_fallback_runs_the_whole_mixed_algorithm():
     assert np.all(np.max(np.asarray(quick.triplet), axis=1) >= 4)
     np.testing.assert_array_equal(quick.status, full.status)
     np.testing.assert_array_equal(quick.accepted, full.accepted)
-    np.testing.assert_array_equal(quick.triplet, full.triplet)
+    # (the same optimum; which of the triplets that reach it is reported may differ:
+    # the Levenberg-Marquardt buffer of a pass of one problem is not a batch's)
     np.testing.assert_allclose(quick.error, full.error, rtol=1e-9)
     np.testing.assert_allclose(quick.pose.R, full.pose.R, atol=1e-9)
     np.testing.assert_allclose(quick.pose.t, full.pose.t, rtol=1e-6, atol=1e-6)
