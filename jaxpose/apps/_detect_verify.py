@@ -23,14 +23,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry._pose import Pose, observations, transform
+from ..geometry._pose import Pose, observations
 from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
 from ..solvers._kernel_linear import linear_kernel, matches_from_observations
-from ..solvers._residuals import pixel_residuals
 from ..solvers._status import Status
 from ._detect_edges import project_vertices, refine_on_edges
 from ._polyhedron import Polyhedron, seen_vertices
-from ._recognition import acceptance_thresholds
+from ._recognition import verdict
 
 __all__ = ["Detection", "Settings", "refine_and_verify", "vertex_directions"]
 
@@ -350,21 +349,12 @@ def _judge(C, model, image, mask, R, t, noise, confidence: float, min_consensus:
     obs, R1, t1, error, status = _linear(C, model, image, mask, R, t)
 
     def rule(obs, R, t, error, status):
-        count = jnp.sum(obs.mask)
-        error_thr, residual_thr = acceptance_thresholds(count, noise, confidence)
-        residuals = jnp.linalg.norm(pixel_residuals(transform(Pose(R, t), obs.model), obs), axis=1)
-        inliers = obs.mask & (residuals < residual_thr)
-        consensus = jnp.sum(inliers) / jnp.maximum(count, 1)
-        enough = count > 3
-        passed = (error < error_thr) & (consensus >= min_consensus)
         solved = status == Status.OK
-        accepted = enough & solved & passed
-        status = jnp.select(
-            [~enough, ~solved, ~passed],
-            [Status.TOO_FEW_POINTS, status, Status.REJECTED],
-            Status.ACCEPTED_LINEAR,
+        status = jnp.where(solved, Status.ACCEPTED_LINEAR, status)
+        accepted, status, inliers, *_ = verdict(
+            obs, Pose(R, t), error, solved, status, noise, confidence, min_consensus
         )
-        return inliers, accepted, status.astype(jnp.int32)
+        return inliers, accepted, status
 
     inliers, accepted, status = jax.vmap(rule)(obs, R1, t1, error, status)
     return R1, t1, error, inliers, accepted, status

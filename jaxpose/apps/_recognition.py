@@ -154,33 +154,42 @@ def verify(
     return _judge(obs, sol, noise, confidence, min_consensus)
 
 
-def _judge(obs, sol, noise, confidence: float, min_consensus: float) -> Verification:
-    """The verification rule (module docstring) applied to the answer `sol` of the
-    problem `obs` (one hypothesis)."""
+def verdict(obs, pose: Pose, error, solved, status, noise, confidence: float, min_consensus: float):
+    """The verification rule (module docstring), the one place it is written: for one
+    hypothesis `obs` at `pose` of Eq. 8 `error`, `solved` whether the solver accepted
+    it and `status` its status. Returns `(accepted, status, inliers, consensus,
+    error_threshold, residual_threshold)`: not accepted with fewer than 4 matches
+    (`TOO_FEW_POINTS`), where the solver failed (its status), or where the error or the
+    consensus fails its bound (`REJECTED`)."""
     dtype = obs.camera.dtype
-    pose = jax.lax.stop_gradient(sol.pose)
     count = jnp.sum(obs.mask)
-    noise = jnp.asarray(noise, dtype)
-    error_thr, residual_thr = acceptance_thresholds(count, noise, confidence)
+    error_thr, residual_thr = acceptance_thresholds(count, jnp.asarray(noise, dtype), confidence)
     residuals = jnp.linalg.norm(pixel_residuals(transform(pose, obs.model), obs), axis=1)
     inliers = obs.mask & (residuals < residual_thr)
     consensus = jnp.sum(inliers) / jnp.maximum(count, 1)
-    error = jax.lax.stop_gradient(sol.error)
     passed = (error < error_thr) & (consensus >= min_consensus)
     enough = count > 3
-    accepted = sol.accepted & enough & passed
+    accepted = solved & enough & passed
     status = jnp.select(
-        [~enough, ~sol.accepted, ~passed],
-        [Status.TOO_FEW_POINTS, sol.status, Status.REJECTED],
-        sol.status,
+        [~enough, ~solved, ~passed], [Status.TOO_FEW_POINTS, status, Status.REJECTED], status
     ).astype(jnp.int32)
+    return accepted, status, inliers, consensus.astype(dtype), error_thr, residual_thr
+
+
+def _judge(obs, sol, noise, confidence: float, min_consensus: float) -> Verification:
+    """`verdict` on the answer `sol` of the problem `obs` (one hypothesis)."""
+    pose = jax.lax.stop_gradient(sol.pose)
+    error = jax.lax.stop_gradient(sol.error)
+    accepted, status, inliers, consensus, error_thr, residual_thr = verdict(
+        obs, pose, error, sol.accepted, sol.status, noise, confidence, min_consensus
+    )
     return Verification(
         pose=pose,
         error=error,
         error_threshold=error_thr,
         residual_threshold=residual_thr,
         inliers=inliers,
-        consensus=consensus.astype(dtype),
+        consensus=consensus,
         accepted=accepted,
         status=status,
     )
