@@ -267,8 +267,10 @@ def solve_pnp_batch(
 
     `options`, `**changes`: as `solve_pnp`. By default each problem's answer comes from
     the best roots of its well-spread triplets (`Options.refine`, `spread_points`); the
-    problems those do not settle then run the whole mixed algorithm, together, in a
-    second compiled program (built only when first needed).
+    problems those leave climb the pipeline's escalation together (the mixed
+    algorithm's steps from the best roots of 12 spread matches, then the whole mixed
+    algorithm: `jaxpose.strategy.escalation`), each rung a compiled program of its own,
+    built only when a problem first needs it.
 
     `chunk_size`: at most this many problems per compiled call (`None`: `CHUNK`, 4096,
     the remainder in a smaller bucket; memory is bounded by the chunk whatever `B`);

@@ -205,7 +205,7 @@ def _linear(C, model, image, mask, R, t):
 
 
 @jax.jit
-def _settle(C, model, image, mask, R, t):
+def _linear_or_start(C, model, image, mask, R, t):
     """`_linear`'s poses, the starting ones kept where it did not converge."""
     _, R1, t1, _, status = _linear(C, model, image, mask, R, t)
     good = status == Status.OK
@@ -259,7 +259,7 @@ def refine_and_verify(
         model, image, mask = _padded(rows, models, points, V, Hn)
         pad = Hn - len(rows)
         with jax.enable_x64(True):
-            R1, t1 = _settle(
+            R1, t1 = _linear_or_start(
                 jnp.asarray(C),
                 jnp.asarray(model),
                 jnp.asarray(image),

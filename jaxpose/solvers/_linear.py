@@ -40,7 +40,7 @@ from ..geometry._numerics import by_precision, masked_centroid
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import rotvec_to_matrix
 from ._linalg import cholesky_solve
-from ._residuals import depths, plane_residuals, safe_inverse_depth, settle
+from ._residuals import depths, final_status, plane_residuals, safe_inverse_depth
 from ._status import Status
 
 __all__ = ["LinearResult", "default_tol", "linear", "linear_step"]
@@ -138,6 +138,6 @@ def linear(
     init = Pose(jnp.asarray(init.R, dtype), jnp.asarray(init.t, dtype))
     start = (init, jnp.asarray(jnp.finfo(dtype).max, dtype))
     pose, step = jax.lax.fori_loop(0, iterations, body, start)
-    pose, error, status = settle(obs, pose, step < tol, Status.LINEAR_NOT_CONVERGED)
+    pose, error, status = final_status(obs, pose, step < tol, Status.LINEAR_NOT_CONVERGED)
     step = jnp.where(jnp.isfinite(step), step, jnp.finfo(dtype).max)
     return LinearResult(pose, error, step, status)

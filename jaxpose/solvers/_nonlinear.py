@@ -34,7 +34,7 @@ from ..geometry._numerics import by_precision
 from ..geometry._pose import Observations, Pose, transform
 from ..geometry._rotation import quaternion_vector_to_matrix
 from ._chart import chart_at, chart_points, chart_pose
-from ._residuals import pixel_residuals, pose_error, rounding_level, settle
+from ._residuals import final_status, pixel_residuals, pose_error, rounding_level
 from ._status import Status
 
 __all__ = ["NonlinearResult", "nonlinear"]
@@ -176,5 +176,5 @@ def nonlinear(
         sol.result == optx.RESULTS.nonlinear_max_steps_reached
     )
     converged = stopped & stationary
-    pose, error, status = settle(obs, pose, converged, Status.NONLINEAR_NOT_CONVERGED)
+    pose, error, status = final_status(obs, pose, converged, Status.NONLINEAR_NOT_CONVERGED)
     return NonlinearResult(pose, error, sol.stats["num_steps"], status)

@@ -92,7 +92,7 @@ def pose_error(pose: Pose, obs: Observations) -> Float[Array, ""]:
     return rms(pixel_residuals(transform(pose, obs.model), obs), obs.mask)
 
 
-def settle(
+def final_status(
     obs: Observations, pose: Pose, converged: Bool[Array, ""], failure: int
 ) -> tuple[Pose, Float[Array, ""], Int[Array, ""]]:
     """A solver's final pose, its Eq. 8 error and its status.

@@ -94,7 +94,7 @@ __all__ = [
     "distinct_best",
     "escalation",
     "rung_applies",
-    "settle_batch",
+    "finish_linear_batch",
     "spread_matches",
 ]
 
@@ -383,7 +383,7 @@ class Answer(NamedTuple):
     status: Int[Array, "*B"]
 
 
-def settle_batch(obs: Observations, found: Answer, steps: int = 2) -> Answer:
+def finish_linear_batch(obs: Observations, found: Answer, steps: int = 2) -> Answer:
     """The values-only finish of a batch of answers (`obs` and `found` with a leading `B`
     axis): `steps` more Gauss-Newton steps of the linear kernel from each, kept where they
     converge and do not raise the Eq. 8 error beyond rounding. At a converged answer they

@@ -473,7 +473,7 @@ def _in_front_all(obs: Observations, pose: Pose) -> Bool[Array, "B T"]:
     return jnp.all(jnp.where(obs.mask[:, None, :], depth > 0, True), axis=-1)
 
 
-def _settled(given: _Given, state: MixedState):
+def _final_poses(given: _Given, state: MixedState):
     """The final poses and errors: a triplet that was not accepted reports the better of
     its last pose and its three-point start, never a pose with points behind the camera."""
     obs, initial, usable = given.obs, given.initial, given.usable
@@ -552,7 +552,7 @@ def mixed_from_initial_batch(
         jnp.zeros(B, jnp.int32),
     )
     _, state = run_jobs(fn, jobs, k, len(phases), advance, state)
-    pose, error = _settled(given, state)
+    pose, error = _final_poses(given, state)
     return MixedResult(
         pose, error, state.status, initial, lin.pose, lin.error, lin.status, thr, state.root
     )

@@ -147,7 +147,7 @@ class Options:
       `jaxpose.strategy._implicit.polish`); `False`: values only, a smaller program
       without LAPACK calls (the OpenCV-convention entry points, whose numpy outputs carry
       no derivative, use it): an answer from the best roots is finished by two more
-      steps of the linear method (`jaxpose.strategy._best.settle_batch`), any other by
+      steps of the linear method (`jaxpose.strategy._best.finish_linear_batch`), any other by
       the same Newton polish solved by Cholesky.
     """
 

@@ -31,7 +31,7 @@ from ..geometry._errors import pose_error
 from ..geometry._pose import Observations, Pose, observations, transform
 from ..solvers._residuals import pixel_residuals, rms
 from ..solvers._status import Status
-from ._best import Answer, answer_batch, settle_batch
+from ._best import Answer, answer_batch, finish_linear_batch
 from ._implicit import polish
 from ._options import Options
 
@@ -104,7 +104,7 @@ def finish(
     identity placeholder (its error kept where finite); for the optimising methods the
     accepted pose is polished to the Eq. 8 optimum by Newton steps, with the implicit
     derivative when `derivative` (unless `settled`: values only, already finished by
-    `settle_batch`), and its error measured again."""
+    `finish_linear_batch`), and its error measured again."""
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     accepted = Status.is_success(found.status)
@@ -145,7 +145,7 @@ def solve_problems(camera, model, image, mask, options: Options) -> Solution:
     # values only: an answer from the best roots is finished by two linear steps
     settled = not options.derivative and options.method == "mixed" and options.refine is not None
     if settled:
-        found = settle_batch(sobs, found)
+        found = finish_linear_batch(sobs, found)
 
     def one(o, f):
         return finish(o, f, options.method, options.derivative, settled)

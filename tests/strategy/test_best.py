@@ -220,7 +220,7 @@ def test_settle_batch_finishes_at_opencvs_optimum():
     reach OpenCV's optimum again (SQPnP + RefineLM); a start it cannot improve is kept."""
     from helpers import opencv_optimum
 
-    from jaxpose.strategy._best import Answer, settle_batch
+    from jaxpose.strategy._best import Answer, finish_linear_batch
 
     rng = np.random.default_rng(12)
     scenes = [jp.apps.random_scene(rng, 9, noise=1.0) for _ in range(6)]
@@ -241,11 +241,11 @@ def test_settle_batch_finishes_at_opencvs_optimum():
         )
 
     found = Answer(jnp.zeros((6, 3), jnp.int32), start, error(obs, start), jnp.ones(6, jnp.int32))
-    settled = jax.jit(settle_batch)(obs, found)
+    settled = jax.jit(finish_linear_batch)(obs, found)
     best = np.asarray(error(obs, jp.geometry.Pose(jnp.asarray(R), jnp.asarray(t))))
     np.testing.assert_allclose(np.asarray(settled.error), best, rtol=1e-9)
     np.testing.assert_allclose(np.asarray(settled.pose.R), R, atol=1e-6)  # RefineLM: ~1e-7
     assert np.all(np.asarray(settled.error) <= np.asarray(found.error))
     # an answer at the optimum stays there (Gauss-Newton converges linearly: within 1e-8)
-    again = jax.jit(settle_batch)(obs, settled)
+    again = jax.jit(finish_linear_batch)(obs, settled)
     np.testing.assert_allclose(np.asarray(again.pose.t), np.asarray(settled.pose.t), rtol=1e-8)
