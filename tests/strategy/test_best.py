@@ -215,7 +215,7 @@ def test_distinct_best_keeps_its_picks_apart():
     assert not found[-1]
 
 
-def test_settle_batch_finishes_at_opencvs_optimum():
+def test_finish_linear_batch_finishes_at_opencvs_optimum():
     """From the optimum moved by about 1e-4 (the linear method's tolerance), two steps
     reach OpenCV's optimum again (SQPnP + RefineLM); a start it cannot improve is kept."""
     from helpers import opencv_optimum
