@@ -171,7 +171,14 @@ def batch_worker(spec: dict) -> dict:
     """`solve_pnp_batch` over `spec["B"]` problems (n = 16), chunked by `chunk_size`."""
     _setup_jax(spec.get("cache_dir"))
     from jaxpose.api._batch import _compiled, _tail_size
-    from jaxpose.api._pnp import CHUNK, MIN_CHUNK, _batched_opencv, _pad_points, _stages
+    from jaxpose.api._pnp import (
+        CHUNK,
+        MIN_CHUNK,
+        _batched_opencv,
+        _pad_points,
+        _stages,
+        _values,
+    )
 
     B, chunk_size, budget = spec["B"], spec["chunk_size"], spec["triplet_budget"]
     method, n = spec.get("method", "mixed"), spec.get("n", 16)
@@ -200,11 +207,12 @@ def batch_worker(spec: dict) -> dict:
         chunk = min(B, chunk_size)
     watch = Stopwatch()
     with jax.enable_x64(True):
-        options = _stages(jp.Options(method=method, triplet_budget=budget))[0]
-        prog = _compiled(_batched_opencv, (options,), (), None, 1, 3)
+        given = jp.Options(method=method, triplet_budget=budget)
+        options = _stages(given)[0]
+        prog = _compiled(_batched_opencv, (options,), (), None, 2, 3)
         rows = np.arange(chunk) % B
         o, i, m = _pad_points(obj[rows].astype(float), img[rows].astype(float))
-        compiled = prog.executable(*(jnp.asarray(a) for a in (K, o, i, m)))
+        compiled = prog.executable(*(jnp.asarray(a) for a in (K, _values(given), o, i, m)))
     analysis_s = watch.seconds
     return {
         "B": B,

@@ -35,7 +35,16 @@ from ..geometry import (
     undistort_pixels,
 )
 from ..solvers import Status
-from ..strategy import Options, RobustOptions, escalation, resolve, robust, rung_applies
+from ..strategy import (
+    Options,
+    RobustOptions,
+    escalation,
+    resolve,
+    robust,
+    rung_applies,
+    split_values,
+    with_values,
+)
 from ._batch import run_batched
 from ._programs import bucket_points, program
 from ._solve import solve, solve_many
@@ -50,9 +59,17 @@ def _pack(K: np.ndarray, obj: np.ndarray, img: np.ndarray, mask: np.ndarray) -> 
     return np.concatenate([np.asarray(a, np.float64).ravel() for a in parts])
 
 
+def _values(options: Options) -> np.ndarray:
+    """The traced values of `options` (`jaxpose.strategy.split_values`)."""
+    return split_values(options)[1]
+
+
 def _solve_opencv(packed, options: Options):
-    """One problem in OpenCV's conventions (the program of `solve_pnp`): `packed` from
-    `_pack`; returns `(ok, rvec, tvec)` as one vector of 7 (one transfer back)."""
+    """One problem in OpenCV's conventions (the program of `solve_pnp`): `packed` the
+    traced values of the options (`_values`, 4) then `_pack`'s vector; `options` a key
+    of `_stages`. Returns `(ok, rvec, tvec)` as one vector of 7 (one transfer back)."""
+    options = with_values(options, packed[:4])
+    packed = packed[4:]
     n = (packed.shape[0] - 9) // 6
     K = packed[:9].reshape(3, 3)
     obj = packed[9 : 9 + 3 * n].reshape(n, 3)
@@ -105,8 +122,10 @@ def _refined_batch(K, dist, rvec, tvec, obj, raw, mask, steps: int):
     return rvec, tvec
 
 
-def _batched_opencv(K, obj, img, mask, options: Options):
-    """A batch in OpenCV's conventions (the program of `solve_pnp_batch`)."""
+def _batched_opencv(K, values, obj, img, mask, options: Options):
+    """A batch in OpenCV's conventions (the program of `solve_pnp_batch`): `options` a
+    key of `_stages`, `values` its traced values (`_values`)."""
+    options = with_values(options, values)
     sol = solve_many(camera_matrix(K), obj, img, mask, options=options)
     return sol.accepted, jax.vmap(matrix_to_rotvec)(sol.pose.R), sol.pose.t
 
@@ -134,8 +153,11 @@ def _stages(options: Options) -> tuple[Options, ...]:
     `escalation` (the best roots of the spread triplets, of more triplets, the whole
     mixed algorithm), each a program of its own, run only for the problems the rungs
     before it did not settle and compiled when first needed. Values only
-    (`derivative=False`: the numpy outputs carry no derivative)."""
-    return escalation(dataclasses.replace(options, derivative=False))
+    (`derivative=False`: the numpy outputs carry no derivative). Each is a program's key
+    (`jaxpose.strategy.split_values`): the thresholds and tolerances are the program's
+    arguments (`_values`), so that changing them compiles nothing."""
+    rungs = escalation(dataclasses.replace(options, derivative=False))
+    return tuple(split_values(rung)[0] for rung in rungs)
 
 
 def _read_array(x, name: str) -> np.ndarray:
@@ -222,7 +244,7 @@ def solve_pnp(
     with jax.enable_x64(True):
         # (numpy in: one transfer each way, no conversion program to compile on a first
         # call, and no separate `device_put` call)
-        packed = _pack(K, obj, img, mask)
+        packed = np.concatenate([_values(options), _pack(K, obj, img, mask)])
         out = np.array(program(_solve_opencv, rungs[0])(packed))
         for k, rung in enumerate(rungs[1:], start=2):
             if out[0]:
@@ -281,7 +303,7 @@ def solve_pnp_batch(
     """
     options = resolve(options, changes)
     K, dist, obj, raw, img = _prepare(object_points, image_points, camera_matrix, dist_coeffs, True)
-    rungs = _stages(options)
+    rungs, options_given = _stages(options), options
     K = np.asarray(K, np.float64)
     _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
     obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
@@ -290,7 +312,7 @@ def solve_pnp_batch(
         def run(obj, img, mask, options, largest):
             return run_batched(
                 _batched_opencv,
-                (K,),
+                (K, _values(options_given)),
                 (obj, img, mask),
                 static=(options,),
                 chunk_size=largest if chunk_size is None else chunk_size,

@@ -15,7 +15,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..strategy import Options
-from ._pnp import CHUNK, _batched_opencv, _pack, _pad_points, _solve_opencv, _stages
+from ._pnp import (
+    CHUNK,
+    _batched_opencv,
+    _pack,
+    _pad_points,
+    _solve_opencv,
+    _stages,
+    _values,
+)
 from ._programs import POINT_BUCKETS, Program, bucket_points, program
 
 __all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_plan"]
@@ -42,11 +50,12 @@ def _problem(n: int, batch: int | None):
     rng = np.random.default_rng(n)
     obj = rng.uniform(-1, 1, (n, 3))
     img = rng.uniform(0, 640, (n, 2))
+    values = _values(Options())
     if batch is None:  # `solve_pnp`'s program takes the problem packed in one vector
-        return (jnp.asarray(_pack(K, *_pad_points(obj, img))),)
+        return (jnp.asarray(np.concatenate([values, _pack(K, *_pad_points(obj, img))])),)
     obj, img = np.broadcast_to(obj, (batch, n, 3)), np.broadcast_to(img, (batch, n, 2))
     obj, img, mask = _pad_points(obj, img)
-    return jnp.asarray(K), jnp.asarray(obj), jnp.asarray(img), jnp.asarray(mask)
+    return tuple(jnp.asarray(a) for a in (K, values, obj, img, mask))
 
 
 def warm_up_plan(
@@ -76,7 +85,7 @@ def warm_up_plan(
             def build_batch(n=n, B=B) -> bool:
                 from ._batch import _compiled
 
-                prog = _compiled(_batched_opencv, (stages[0],), (), None, 1, 3)
+                prog = _compiled(_batched_opencv, (stages[0],), (), None, 2, 3)
                 assert isinstance(prog, Program)
                 before = prog.compiled
                 with jax.enable_x64(True):

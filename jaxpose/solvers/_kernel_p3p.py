@@ -462,8 +462,8 @@ def three_point_batch(
     model: Float[Array, "T 3 3"],
     image: Float[Array, "T 3 2"],
     *,
-    min_area: float = 40.0,
-    collinear_tol: float = 5e-3,
+    min_area: float | Float[Array, ""] = 40.0,
+    collinear_tol: float | Float[Array, ""] = 5e-3,
     approximate: bool = False,
     chunk: int = CHUNK,
 ) -> ThreePointResult:

@@ -372,8 +372,8 @@ def three_point(
     model: Real[ArrayLike, "3 3"],
     image: Real[ArrayLike, "3 2"],
     *,
-    min_area: float = 40.0,
-    collinear_tol: float = 5e-3,
+    min_area: float | Float[Array, ""] = 40.0,
+    collinear_tol: float | Float[Array, ""] = 5e-3,
     approximate: bool = False,
 ) -> ThreePointResult:
     """The three-point method in the world frame, with the degeneracy tests (the paper's

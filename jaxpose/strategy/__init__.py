@@ -24,9 +24,12 @@ from ._mixed import mixed as mixed
 from ._mixed import mixed_from_initial as mixed_from_initial
 from ._mixed import mixed_from_initial_batch as mixed_from_initial_batch
 from ._options import METHODS as METHODS
+from ._options import TRACED as TRACED
 from ._options import Options as Options
 from ._options import RobustOptions as RobustOptions
 from ._options import resolve as resolve
+from ._options import split_values as split_values
+from ._options import with_values as with_values
 from ._pipeline import Solution as Solution
 from ._pipeline import solve_problems as solve_problems
 from ._robust import RobustResult as RobustResult

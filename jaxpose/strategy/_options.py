@@ -29,10 +29,20 @@ from typing import Any, TypeGuard, TypeVar
 
 import jax
 import numpy as np
+from jax.core import Tracer
 
 from ..geometry._validate import no_type_check
 
-__all__ = ["METHODS", "REFINEMENTS", "Options", "RobustOptions", "resolve"]
+__all__ = [
+    "METHODS",
+    "REFINEMENTS",
+    "TRACED",
+    "Options",
+    "RobustOptions",
+    "resolve",
+    "split_values",
+    "with_values",
+]
 
 #: The methods of `Options.method`: the paper's four.
 METHODS = ("mixed", "three_point", "linear", "nonlinear")
@@ -70,6 +80,8 @@ def _check_real(name: str, value, *, positive: bool, optional: bool = False) -> 
     `optional`), else `ValueError` naming it."""
     if value is None and optional:
         return
+    if isinstance(value, Tracer):
+        return  # a traced value (`TRACED`), checked where it was concrete
     bound = "> 0" if positive else ">= 0"
     none = " or None" if optional else ""
     if not _is_real(value) or (value <= 0 if positive else value < 0):
@@ -191,6 +203,40 @@ class Options:
         _check_int("spread_points", self.spread_points, 3, optional=True)
         _check_int("wider_spread", self.wider_spread, 3, optional=True)
         _check_int("chunk", self.chunk, 1, optional=True)
+
+
+#: The fields of `Options` that a compiled program takes as values, not as part of its
+#: structure: changing them between calls compiles nothing (`split_values`). `threshold`
+#: is structural only in being `None` (adaptive) or a number.
+TRACED = ("threshold", "rel_threshold", "min_area", "collinear_tol")
+
+
+def split_values(options: Options) -> tuple[Options, np.ndarray]:
+    """`(key, values)`: `options` with its `TRACED` fields set to fixed stand-ins (the
+    program's key: equal for options that differ only in those values) and the values
+    themselves, a float64 vector of 4 (`threshold` `0` where it is `None`)."""
+    given = options.threshold
+    key = dataclasses.replace(
+        options,
+        threshold=None if given is None else 1.0,
+        rel_threshold=Options.rel_threshold,
+        min_area=Options.min_area,
+        collinear_tol=Options.collinear_tol,
+    )
+    values = [0.0 if given is None else given, options.rel_threshold]
+    values += [options.min_area, options.collinear_tol]
+    return key, np.asarray(values, np.float64)
+
+
+def with_values(key: Options, values) -> Options:
+    """`key` (from `split_values`) with the `TRACED` values `values` (arrays, inside a
+    compiled program; they were checked where they were concrete). A `None` threshold
+    stays `None`."""
+    new = dataclasses.replace(key)
+    for name, value in zip(TRACED, values, strict=True):
+        if name != "threshold" or key.threshold is not None:
+            object.__setattr__(new, name, value)
+    return new
 
 
 @no_type_check

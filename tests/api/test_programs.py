@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose.api import _programs
+from jaxpose.api import _pnp, _programs
 from jaxpose.api._programs import CACHE_ENV, Program, bucket_points, cache_dir
 
 K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
@@ -239,6 +239,35 @@ def test_every_n_from_4_to_40_compiles_one_program_per_bucket():
     assert first_pass <= 4
 
 
+def test_thresholds_and_tolerances_compile_nothing():
+    """The acceptance thresholds and the degeneracy tolerances are a program's values,
+    not its structure: `solve_pnp` with other values runs the programs it already holds
+    (no XLA compile), and the values take effect (an image area no triplet reaches leaves
+    every triplet degenerate: no pose; the default finds it). A fixed threshold is
+    another structure than the adaptive one (`None`), but its value is not."""
+    key = _pnp._stages
+    assert key(jp.Options(threshold=2.0)) == key(jp.Options(threshold=30.0))
+    assert key(jp.Options(min_area=1.0, rel_threshold=0.5)) == key(jp.Options())
+    assert key(jp.Options(threshold=2.0)) != key(jp.Options())
+    obj, img = _problem(12, seed=7)
+    compiles: list[str] = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(event)
+
+    assert jp.solve_pnp(obj, img, K, min_area=1e12)[0] is False  # every rung runs
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        before = _programs_in_use()
+        ok, _, tvec = jp.solve_pnp(obj, img, K, rel_threshold=0.05, collinear_tol=1e-3)
+        assert ok and np.allclose(tvec, jp.solve_pnp(obj, img, K)[2])
+        assert jp.solve_pnp(obj, img, K, min_area=1e13)[0] is False
+        assert not compiles and _programs_in_use() == before
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
 def _programs_in_use() -> int:
     """Executables held by `solve_pnp`'s programs in this process."""
     return sum(len(p._memo) for p in _programs._PROGRAMS.values())
@@ -260,7 +289,7 @@ def test_the_programs_compiler_options_give_the_default_answers():
         np.asarray(scene.model_points), np.asarray(scene.image_points)
     )
     with jax.enable_x64(True):
-        packed = _pnp._pack(K, obj, img, mask)
+        packed = np.concatenate([_pnp._values(jp.Options()), _pnp._pack(K, obj, img, mask)])
         lowered = jax.jit(lambda p: _pnp._solve_opencv(p, first)).lower(packed)
         ours = np.asarray(lowered.compile(compiler_options=_programs.compiler_options())(packed))
         default = np.asarray(
