@@ -105,6 +105,11 @@ class Options:
     naming the field). Change fields with `dataclasses.replace`, or with the keyword
     shorthands of the entry points (`jaxpose.solve(C, M, I, method="linear")`).
 
+    The thresholds and tolerances (`TRACED`: `threshold`, `rel_threshold`, `min_area`,
+    `collinear_tol`) are values, not structure: the stored programs of `solve_pnp*` take
+    them as arguments (changing them compiles nothing), and under your own `jax.jit`
+    they may be traced arrays (`jax.jit(lambda thr: solve(C, M, I, threshold=thr))`).
+
     **Fields:**
     - `method`: `"mixed"` (the paper's mixed algorithm, `jaxpose.mixed`),
       `"three_point"`, `"linear"` or `"nonlinear"` (the last two started from every
