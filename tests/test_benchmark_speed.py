@@ -164,3 +164,25 @@ def test_chessboard_problem_and_peak_memory():
     assert np.all((img > 0) & (img < [640, 480]))
     peak = peak_memory_mb()
     assert peak["ru_maxrss"] > 0 and (peak["vm_hwm"] is None or peak["vm_hwm"] > 0)
+
+
+def test_device_benchmark_writes_what_its_table_reads(tmp_path):
+    """`benchmarks/device.py` runs (its kernel section, small) and saves the device, the
+    host's CPU and the figures; the documentation's table renders from a saved run."""
+    import json
+    import sys
+    from pathlib import Path
+
+    from benchmarks import device
+
+    out = tmp_path / "device.json"
+    res = device.main(["--quick", "--sections", "p3p", "--out", str(out)])
+    saved = json.loads(out.read_text())
+    assert saved["device"]["platform"] == res["device"]["platform"]
+    assert saved["machine"]["cpu"] and saved["machine"]["devices"]
+    assert saved["p3p"]["ns_per_triplet"] > 0 and saved["p3p"]["solved"] > 0.9
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "docs" / "scripts"))
+    from tables_speed import device as device_table
+
+    text = device_table(Path(__file__).resolve().parents[1] / "benchmarks" / "results")
+    assert "three-point kernel" in text and "Machine:" in text

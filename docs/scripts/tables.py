@@ -38,6 +38,7 @@ from tables_accuracy import (  # noqa: E402
 )
 from tables_format import Missing, table  # noqa: E402
 from tables_speed import (  # noqa: E402
+    device,
     scale_batch,
     scale_cache,
     scale_n,
@@ -171,6 +172,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "speed_phases": speed_phases,
     "speed_batch": speed_batch,
     "speed_classes": speed_classes,
+    "device": device,
     "startup": startup,
     "scale_n": scale_n,
     "scale_batch": scale_batch,

@@ -363,3 +363,63 @@ def startup(results: Path) -> str:
             )
     command = "python -m benchmarks.startup" + (" --quick" if "quick" in name else "")
     return "\n\n".join(parts) + "\n\n" + caption(d, name, command=command)
+
+
+def device(results: Path) -> str:
+    """The batch benchmarks on an accelerator (`benchmarks/device.py`): each problem
+    class at two batch sizes, 10^5 problems, the three-point kernel; the OpenCV loop on
+    the same machine's CPU."""
+    d, name = load(results, "device_h100.json", "device_h200.json", "device.json")
+    kind = d["device"]["kind"]
+    small, large = d["classes"]["sizes"]
+    rows = []
+    for cls, r in d["classes"]["classes"].items():
+        lo, hi = r[str(small)], r[str(large)]
+        rows.append(
+            (
+                f"{cls.replace('_', ' ')}, B = {small:,} / {large:,}",
+                f"{duration(1e-6 * lo['per_problem_us'])} / "
+                f"{duration(1e-6 * hi['per_problem_us'])}",
+                duration(1e-6 * r["opencv_us"]),
+                f"{hi['vs_opencv']:.1f}x",
+                share(min(lo["at_optimum"], hi["at_optimum"])),
+            )
+        )
+    big = d.get("large")
+    if big:
+        for how, label in (("one_call", "one call"), ("chunked", "chunks of")):
+            r = big[how]
+            what = f"{label} {r['chunk_size']:,}" if how == "chunked" else label
+            rows.append(
+                (
+                    f"ordinary, B = {big['B']:,}, {what}",
+                    duration(1e-6 * r["per_problem_us"]),
+                    duration(1e-6 * big["opencv_us"]),
+                    f"{r['vs_opencv']:.1f}x",
+                    "-",
+                )
+            )
+    p = d.get("p3p")
+    if p:
+        rows.append(
+            (
+                f"three-point kernel, {p['triplets']:,} triplets",
+                duration(1e-9 * p["ns_per_triplet"]) + " a triplet",
+                duration(1e-9 * p["opencv_ns_per_triplet"]) + " (`solveP3P`)",
+                f"{p['opencv_ns_per_triplet'] / p['ns_per_triplet']:.0f}x",
+                "-",
+            )
+        )
+    header = ("workload", f"jaxpose on the {kind}", "OpenCV on its CPU", "ratio", "at optimum")
+    note = (
+        f"`solve_pnp_batch` with its defaults on one {kind}, beside the loop of "
+        "`cv2.solvePnP` (SQPNP) and `solvePnPRefineLM` on one core of the same machine's "
+        "CPU (time per problem). Float64 throughout."
+    )
+    return (
+        note
+        + "\n\n"
+        + table(header, rows)
+        + "\n\n"
+        + caption(d, name, command=f"python -m benchmarks.device --out benchmarks/results/{name}")
+    )
