@@ -64,3 +64,27 @@ SLOW_FIRST = (
 def pytest_collection_modifyitems(items):
     rank = {name: i for i, name in enumerate(SLOW_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+# The count of XLA compilations of the run (JAX's `backend_compile_duration` events,
+# which the persistent cache's hits do not raise), per worker, written to
+# `$JAXPOSE_COMPILE_LOG` when set: a clean clone's count is the suite's program count.
+_COMPILES = {"count": 0, "seconds": 0.0}
+
+
+def _count_compile(event, duration, **kwargs):
+    if event == "/jax/core/compile/backend_compile_duration":
+        _COMPILES["count"] += 1
+        _COMPILES["seconds"] += duration
+
+
+if os.environ.get("JAXPOSE_COMPILE_LOG"):
+    jax.monitoring.register_event_duration_secs_listener(_count_compile)
+
+
+def pytest_sessionfinish(session):
+    log = os.environ.get("JAXPOSE_COMPILE_LOG")
+    if log:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(log, "a") as f:
+            f.write(f"{worker} {_COMPILES['count']} {_COMPILES['seconds']:.1f}\n")
