@@ -27,7 +27,7 @@ error is within `1e-6` px of the reference's (absolute; the stricter `1e-9` rela
 criterion is counted too). Trials where jaxpose's mixed method misses it are kept in the
 JSON as reproducers.
 
-**Real images:** OpenCV's chessboard set (`tests/data/chessboard/`): corners by
+**Real images:** OpenCV's chessboard set (`jaxpose/data/chessboard/`): corners by
 `cv2.findChessboardCorners` and `cv2.cornerSubPix`, intrinsics and distortion from
 `left_intrinsics.yml`; per image, jaxpose's pose (`jaxpose.solve_pnp`, mixed) against
 OpenCV's reference pose (the calibration's own extrinsics, in the same file) and against
@@ -98,7 +98,7 @@ from benchmarks._protocol import (
 )
 from jaxpose.solvers import Status
 
-CHESSBOARD = ROOT / "tests" / "data" / "chessboard"
+CHESSBOARD = ROOT / "jaxpose" / "data" / "chessboard"
 
 SIGMAS = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0)
 NS = (4, 6, 10, 20, 50, 100, 200)

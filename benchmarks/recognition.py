@@ -11,11 +11,11 @@ vertices at the detected pose lie within 2 px RMS of the true ones (each true ve
 against the nearest detected one, so that a symmetric pose counts as right). Scenes
 without any model: a false detection is any detection.
 
-**The box photograph** (`tests/data/opencv_pose_box/`): the box's eight vertices at the
+**The box photograph** (`jaxpose/data/opencv_pose_box/`): the box's eight vertices at the
 pose found from the mesh alone (`jaxpose.apps.recognize` with `box.ply`: the vertex
 path) and from the textured ORB model (the keypoint path), against their reference
 pixels (the pose of `cv2.solvePnPRansac` + `cv2.solvePnPRefineLM` on the keypoint
-matches; `tests/data/README.md`), compared as for the scenes (the untextured box is
+matches; `jaxpose/data/README.md`), compared as for the scenes (the untextured box is
 symmetric); `cv2.solvePnPRansac` on the same keypoint matches beside it. Beside them,
 each path against the seven visible corners measured on the photograph itself
 (`corners.csv`, independently of both paths), with the floor of any pose of this mesh:
@@ -46,7 +46,7 @@ __all__ = ["TARGETS", "box_photograph", "main", "scenes"]
 DATABASE = ("cross_prism", "l_block", "hexagonal_prism")
 #: What the issue asks for: right scenes, false detections on empty ones, seconds per image.
 TARGETS = {"right": 0.95, "false": 0, "seconds": 1.0}
-BOX = Path(__file__).resolve().parents[1] / "tests" / "data" / "opencv_pose_box"
+BOX = Path(__file__).resolve().parents[1] / "jaxpose" / "data" / "opencv_pose_box"
 BOX_K = np.array([[1384.484, 0.0, 359.0], [0.0, 1385.235, 240.0], [0.0, 0.0, 1.0]])
 #: The box's visible corners measured on the photograph: mesh vertex, u, v (px).
 BOX_CORNERS = np.loadtxt(BOX / "corners.csv", delimiter=",")

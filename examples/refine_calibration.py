@@ -34,7 +34,7 @@ import jaxpose as jp
 from jaxpose.geometry import project_points
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "tests" / "data" / "chessboard"
+DATA = ROOT / "jaxpose" / "data" / "chessboard"
 IMAGES = ("01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14")
 PATTERN = (9, 6)  # inner corners per row, per column
 SQUARE = 0.025  # metres

@@ -29,7 +29,7 @@ from jaxpose.apps._recognition import Hypothesis, verify_hypotheses
 from jaxpose.viz._overlay import overlay, render
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "tests" / "data" / "chessboard"
+DATA = ROOT / "jaxpose" / "data" / "chessboard"
 
 
 def zoom_camera(camera: np.ndarray, box: tuple[float, float, float, float], scale: float):

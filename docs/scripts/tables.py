@@ -38,6 +38,7 @@ from tables_accuracy import (  # noqa: E402
 )
 from tables_format import Missing, table  # noqa: E402
 from tables_speed import (  # noqa: E402
+    costs,
     device,
     scale_batch,
     scale_cache,
@@ -173,6 +174,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "speed_batch": speed_batch,
     "speed_classes": speed_classes,
     "device": device,
+    "costs": costs,
     "startup": startup,
     "scale_n": scale_n,
     "scale_batch": scale_batch,
@@ -220,14 +222,35 @@ def _write_if_changed(path: Path, data: bytes) -> bool:
     return True
 
 
-def write(results: Path = RESULTS, out: Path = OUT) -> list[Path]:
-    """Write the tables and copy the plots into `out`; return the files that changed."""
+#: The tables the README holds between `<!-- table: NAME -->` and `<!-- end table -->`.
+README = ROOT / "README.md"
+README_TABLES = ("costs",)
+
+
+def readme_with_tables(text: str, tables: dict[str, str]) -> str:
+    """`text` (the README) with each `README_TABLES` region holding its table."""
+    for name in README_TABLES:
+        begin, end = f"<!-- table: {name} -->\n", "<!-- end table -->"
+        i = text.index(begin) + len(begin)
+        j = text.index(end, i)
+        text = text[:i] + "\n" + tables[name].rstrip() + "\n\n" + text[j:]
+    return text
+
+
+def write(results: Path = RESULTS, out: Path = OUT, readme: Path | None = README) -> list[Path]:
+    """Write the tables and copy the plots into `out`, and the README's tables into
+    `readme` (`None`: not); return the files that changed."""
     out.mkdir(parents=True, exist_ok=True)
     changed = []
-    for name, text in build(results).items():
+    tables = build(results)
+    for name, text in tables.items():
         path = out / f"{name}.md"
         if _write_if_changed(path, (text.rstrip() + "\n").encode()):
             changed.append(path)
+    if readme is not None and readme.is_file():
+        text = readme.read_text()
+        if _write_if_changed(readme, readme_with_tables(text, tables).encode()):
+            changed.append(readme)
     for target, candidates in PLOTS.items():
         found = next((results / c for c in candidates if (results / c).is_file()), None)
         if found is not None and _write_if_changed(out / target, found.read_bytes()):

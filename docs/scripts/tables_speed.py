@@ -423,3 +423,46 @@ def device(results: Path) -> str:
         + "\n\n"
         + caption(d, name, command=f"python -m benchmarks.device --out benchmarks/results/{name}")
     )
+
+
+def costs(results: Path) -> str:
+    """What a call costs beside OpenCV's (the README's table, also `docs/generated/`):
+    `solve_pnp` on one problem, `solve_pnp_batch` per problem, `solve_pnp_ransac`, each
+    from its saved benchmark, with the machine it ran on."""
+    speed_d, speed_name = load(results, "speed.json")
+    rows = []
+
+    def row(what, ours_s, peer, peer_s, data):
+        m = data.get("machine")
+        cpu = m.get("cpu") if isinstance(m, dict) else None
+        ratio = ours_s / peer_s
+        says = f"{ratio:.1f}x slower" if ratio >= 1 else f"{1 / ratio:.1f}x faster"
+        rows.append((what, duration(ours_s), f"{duration(peer_s)} ({peer})", says, cpu or "-"))
+
+    sqpnp = "`solvePnP` SQPNP + `solvePnPRefineLM`"
+    lat = speed_d["latency"]["bench"]
+    row("`solve_pnp`, one problem (n = 16)", 1e-3 * lat["ms"], sqpnp, 1e-6 * lat["sqpnp_lm_us"], speed_d)
+    big = speed_d["batch"][-1]
+    row(
+        f"`solve_pnp_batch`, per problem of {big['B']:,} (n = 16)",
+        1e-6 * big["per_problem_us"],
+        "the same, in a loop",
+        big["opencv_s"] / big["B"],
+        speed_d,
+    )
+    try:
+        rob, _ = load(results, "robust.json")
+        cell = rob["cells"]["bench"]["0.30"]
+        row(
+            "`solve_pnp_ransac`, n = 16, 30% wrong matches",
+            cell["jaxpose"]["per_call_s_median"],
+            "`solvePnPRansac`",
+            cell["cv2"]["per_call_s_median"],
+            rob,
+        )
+    except (Missing, KeyError):
+        pass
+    header = ("call", "jaxpose", "OpenCV", "jaxpose is", "CPU")
+    return table(header, rows) + "\n\n" + caption(
+        speed_d, speed_name, "robust.json", command="make bench"
+    )

@@ -9,6 +9,7 @@ from ._batch import run_batched as run_batched
 from ._pnp import solve_pnp as solve_pnp
 from ._pnp import solve_pnp_batch as solve_pnp_batch
 from ._pnp import solve_pnp_ransac as solve_pnp_ransac
+from ._programs import cache_dir as cache_dir
 from ._solve import METHODS as METHODS
 from ._solve import Solution as Solution
 from ._solve import solve as solve

@@ -189,7 +189,10 @@ def _prepare_runtime() -> None:
 
 
 def _signature(args) -> tuple:
-    return tuple((tuple(np.shape(a)), str(a.dtype)) for a in map(_array, args))
+    """The arguments' structure (pytrees: tuples, named tuples, `None`) and the shape and
+    dtype of each array."""
+    leaves, tree = jax.tree.flatten(args)
+    return (str(tree), *((tuple(np.shape(a)), str(a.dtype)) for a in map(_array, leaves)))
 
 
 def _array(a):
@@ -198,7 +201,8 @@ def _array(a):
 
 class Program:
     """`fn(*arrays)` compiled once per input signature, its executables kept in the
-    process and on disk (see the module docstring).
+    process and on disk (see the module docstring). The arguments and the result may be
+    pytrees of arrays (tuples, named tuples, `None`).
 
     `name` identifies the program on disk together with the signature: it must name
     the function and every value closed over it (e.g. the `Options`), as `program` does.

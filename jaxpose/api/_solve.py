@@ -13,8 +13,17 @@ from jaxtyping import ArrayLike, Bool, Real
 
 from ..geometry import as_batched, check_problem, no_type_check
 from ..strategy import METHODS as METHODS
-from ..strategy import Options, Solution, resolve, solve_problems
+from ..strategy import (
+    TRACED,
+    Options,
+    Solution,
+    resolve,
+    solve_problems,
+    split_values,
+    with_values,
+)
 from ._batch import run_batched
+from ._programs import bucket_points, program
 
 __all__ = ["METHODS", "Solution", "solve", "solve_batch", "solve_many"]
 
@@ -72,14 +81,13 @@ def solve(
     """
     options = resolve(options, changes)
     check_problem(camera, model, image, mask)
-    one = solve_problems(
-        camera,
-        jnp.asarray(model)[None],
-        jnp.asarray(image)[None],
-        None if mask is None else jnp.asarray(mask)[None],
-        options,
-    )
-    return jax.tree.map(lambda a: a[0], one)
+
+    def one(x):  # a batch of one (numpy for a plain call: no dispatch)
+        if x is None:
+            return None
+        return x[None] if isinstance(x, jax.core.Tracer) else np.asarray(x)[None]
+
+    return _pipeline(camera, one(model), one(image), one(mask), options, single=True)
 
 
 @no_type_check
@@ -106,7 +114,79 @@ def solve_many(
     """
     options = resolve(options, changes)
     _check_many(camera, model, image, mask)
-    return solve_problems(camera, model, image, mask, options)
+    return _pipeline(camera, model, image, mask, options)
+
+
+# ------------------------------------------------------------------ compiled programs
+
+
+def _pipeline(camera, model, image, mask, options: Options, single: bool = False) -> Solution:
+    """`solve_problems`, compiled. Concrete inputs (a plain call) run a stored program
+    (`jaxpose.api._programs`: compiled once per bucket of points and of problems, kept
+    on disk, loaded by a new process, built ahead by `jaxpose warmup`); traced ones
+    (under the caller's `jit`, `vmap` or `grad`) run `jax.jit` of the pipeline, whose
+    program JAX keeps for the life of the process. Either way a call is as fast from
+    its second call as a jitted one. The thresholds and tolerances are the programs'
+    values (`jaxpose.strategy.split_values`): changing them compiles nothing.
+    `single`: one problem (`B = 1`), returned without its batch axis."""
+    arrays = (camera, model, image, mask)
+    traced = any(isinstance(x, jax.core.Tracer) for x in arrays)
+    values_traced = any(isinstance(getattr(options, f), jax.core.Tracer) for f in TRACED)
+    if values_traced:  # the options' values are the caller's tracers: trace it all
+        out = solve_problems(camera, model, image, mask, options)
+    else:
+        key, values = split_values(options)
+        if not traced:
+            return _stored(camera, model, image, mask, key, values, single)
+        out = _jitted(values, camera, model, image, mask, options=key)
+    return jax.tree.map(lambda a: a[0], out) if single else out
+
+
+def _with_values(values, camera, model, image, mask, options: Options) -> Solution:
+    return solve_problems(camera, model, image, mask, with_values(options, values))
+
+
+_jitted = jax.jit(_with_values, static_argnames=("options",))
+
+
+def _stored_program(values, camera, model, image, mask, options: Options, single: bool):
+    """The stored program of `_pipeline` (`single`: the first problem's answer)."""
+    out = _with_values(values, camera, model, image, mask, options)
+    return jax.tree.map(lambda x: x[0], out) if single else out
+
+
+def bucket_problems(B: int) -> int:
+    """The padded batch size of a plain `solve_many` call of `B` problems: `B` up to 4,
+    else the next power of two."""
+    return B if B <= 4 else 1 << (int(B) - 1).bit_length()
+
+
+def _stored(camera, model, image, mask, options: Options, values, single: bool) -> Solution:
+    """The pipeline on concrete inputs through its stored program: the points padded to
+    their bucket (`bucket_points`, the padding masked out), the problems to theirs
+    (`bucket_problems`, repeating the last), and the answers cut back."""
+    camera, model, image = (np.asarray(x) for x in (camera, model, image))
+    dtype = jnp.result_type(float, camera.dtype, model.dtype, image.dtype)
+    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    B, n = model.shape[:2]
+    mask = np.ones((B, n), bool) if mask is None else np.asarray(mask, bool)
+    size, rows = bucket_points(n), bucket_problems(B)
+
+    def points(x):  # padding matches repeat the first, masked out
+        fill = np.zeros((B, size - n, *x.shape[2:]), x.dtype)
+        if x.dtype != np.bool_:
+            fill[:] = x[:, :1]
+        return np.concatenate([x, fill], axis=1)
+
+    def problems(x):
+        return np.concatenate([x, np.repeat(x[-1:], rows - B, axis=0)]) if rows > B else x
+
+    model, image, mask = (problems(points(x)) for x in (model, image, mask))
+    model, image = model.astype(dtype), image.astype(dtype)
+    camera = (problems(camera) if camera.ndim == 3 else camera).astype(dtype)
+    run = program(_stored_program, options, single)
+    out = run(values.astype(dtype), camera, model, image, mask)
+    return out if rows == B else jax.tree.map(lambda x: x[:B], out)
 
 
 def _check_many(camera, model, image, mask) -> None:

@@ -1,8 +1,9 @@
 """Build the standard compiled programs ahead of time (`jaxpose warmup`).
 
-`warm_up` compiles (or finds already on disk) the programs that `solve_pnp` and
-`solve_pnp_batch` run for each point bucket, and stores them in the program cache
-(`jaxpose.api._programs`), so that the first call of a new process only loads them.
+`warm_up` compiles (or finds already on disk) the programs that `solve_pnp`,
+`solve_pnp_batch` and a plain `solve` (float64, default options) run for each point
+bucket, and stores them in the program cache (`jaxpose.api._programs`), so that the first
+call of a new process only loads them.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..strategy import Options
+from ..strategy import Options, split_values
 from ._pnp import (
     CHUNK,
     _batched_opencv,
@@ -25,6 +26,7 @@ from ._pnp import (
     _values,
 )
 from ._programs import POINT_BUCKETS, Program, bucket_points, program
+from ._solve import _stored_program
 
 __all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_plan"]
 
@@ -80,6 +82,18 @@ def warm_up_plan(
                 return prog.compiled > before
 
             plan.append((f"{name}, {n} points", build))
+
+        def build_solve(n=n) -> bool:
+            key, values = split_values(options)
+            prog = program(_stored_program, key, True)
+            before = prog.compiled
+            K = np.asarray([[800.0, 0, 320, 0], [0, 800, 240, 0], [0, 0, 1, 0]])
+            shapes = (values, K, np.zeros((1, n, 3)), np.zeros((1, n, 2)), np.ones((1, n), bool))
+            with jax.enable_x64(True):
+                prog.executable(*shapes)
+            return prog.compiled > before
+
+        plan.append((f"solve, {n} points", build_solve))
         for B in sorted({min(int(b), CHUNK) for b in batches}):
 
             def build_batch(n=n, B=B) -> bool:
@@ -102,9 +116,9 @@ def warm_up(
     options: Options | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> list[Built]:
-    """Build the programs of `solve_pnp` (both stages: the answer from the best roots and
-    the whole mixed algorithm it falls back to) for the buckets of `points`, and of
-    `solve_pnp_batch` for the chunk sizes `batches`, with `options` (default `Options()`).
+    """Build the programs of `solve_pnp` (one per rung of the escalation) and of a plain
+    `solve` (float64, one problem) for the buckets of `points`, and of `solve_pnp_batch`
+    for the chunk sizes `batches`, with `options` (default `Options()`).
     Programs already on disk are only loaded. `progress(description)` is called before
     each. Returns what was built."""
     built = []

@@ -48,6 +48,8 @@ from ._robot import default_robot as default_robot
 from ._robot import forward_kinematics as forward_kinematics
 from ._robot import inverse_kinematics as inverse_kinematics
 from ._robot import joint_command as joint_command
+from ._samples import SAMPLES as SAMPLES
+from ._samples import sample_path as sample_path
 from ._textured import TexturedPose as TexturedPose
 from ._textured import locate_matches as locate_matches
 from ._textured import locate_textured as locate_textured

@@ -19,6 +19,7 @@ import functools
 import math
 from typing import NamedTuple
 
+import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -330,14 +331,41 @@ def refine_and_verify(
         )
     detections.sort(key=lambda d: (-d.score, d.error))
     chosen: list[Detection] = []
+    outlines: list[np.ndarray] = []
     for d in detections:
         used = set(d.image_vertices.tolist())
         if any(len(used & set(c.image_vertices.tolist())) > 0.5 * len(used) for c in chosen):
             continue
+        # one detection per object: none whose picture mostly covers a better one's
+        outline = _outline(K, *to_cam(d.R, d.t), models[d.model])
+        if any(_overlap(outline, o) > MAX_OVERLAP for o in outlines):
+            continue
         chosen.append(d)
+        outlines.append(outline)
         if len(chosen) == max_detections:
             break
     return chosen
+
+
+#: Two detections whose pictures (the convex outlines of the projected models) overlap by
+#: more than this share of the smaller one are one object: the better one is kept.
+MAX_OVERLAP = 0.5
+
+
+def _outline(K, R_cam, t_cam, model: Polyhedron) -> np.ndarray:
+    """The convex outline `(k, 2)` float32 of `model`'s vertices projected at the pose."""
+    cam = np.asarray(model.vertices, np.float64) @ np.asarray(R_cam).T + np.asarray(t_cam)
+    uv = cam[:, :2] / np.maximum(cam[:, 2:], 1e-9) @ np.asarray(K)[:2, :2].T + np.asarray(K)[:2, 2]
+    return cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2)
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> float:
+    """The area shared by two convex outlines over the smaller one's area."""
+    smaller = min(cv2.contourArea(a), cv2.contourArea(b))
+    if smaller <= 0:
+        return 0.0
+    shared, _ = cv2.intersectConvexConvex(a, b)
+    return float(shared) / smaller
 
 
 @functools.partial(jax.jit, static_argnames=("confidence", "min_consensus"))

@@ -127,9 +127,16 @@ def build_parser() -> argparse.ArgumentParser:
         "OpenCV's pose (x_cam = Rodrigues(rvec) X + tvec); --json writes them with the "
         "pixels of the model's vertices at the pose. A camera with distortion: the image is "
         "undistorted first, the pose is that camera's, the pixels those of the image as "
-        "given. Exit code 0 when something is recognised, 1 when nothing is, 2 on bad input.",
+        "given. Several images: one table each, --json holds {'images': [{'image', "
+        "'detections'}, ...]} and the recording one step of its 'image' timeline each. Exit "
+        "code 0 when something is recognised in every image, 1 when not, 2 on bad input.",
     )
-    r.add_argument("image", help="the photograph (any format OpenCV reads)")
+    r.add_argument(
+        "image",
+        nargs="+",
+        help="photographs (any format OpenCV reads), or folders of them (sorted by name), "
+        "recognised one after the other in one process",
+    )
     r.add_argument(
         "--model",
         metavar="FILE",
@@ -163,9 +170,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_recognize)
     w = sub.add_parser(
         "warmup",
-        help="compile solve_pnp's programs ahead of time, into the program cache",
-        description="Build the compiled programs of solve_pnp (and of solve_pnp_batch for "
-        "the --batch chunk sizes) for the point buckets holding --points, and keep them in "
+        help="compile solve_pnp's and solve's programs ahead of time, into the program cache",
+        description="Build the compiled programs of solve_pnp and of a plain solve (and of "
+        "solve_pnp_batch for the --batch chunk sizes) for the point buckets holding "
+        "--points, and keep them in "
         "the program cache ($JAXPOSE_CACHE_DIR, else ~/.cache/jaxpose), so that a new "
         "process loads them instead of compiling. Programs already there are only loaded.",
     )

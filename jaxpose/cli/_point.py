@@ -3,7 +3,6 @@ and the robot's joints to reach it."""
 
 from __future__ import annotations
 
-import functools
 import time
 
 from ._common import CliError, new_console, setup_jax
@@ -12,30 +11,32 @@ from ._recording import check_recording_args, make_recording, wants_recording
 __all__ = ["cmd_point"]
 
 
-@functools.cache
-def _point_pipeline(fallback: bool = True):
-    """`jaxpose point`'s computation, compiled once per process: solve the bench, its pose
-    covariance, the click's point (and the true one), the robot's joints. `fallback`:
+def _point_run(C, M, I, pixel, R_true, t_true, faces, click_cov, robot, fallback: bool):
+    """`jaxpose point`'s computation, one stored program (`jaxpose.api._programs`:
+    compiled once, loaded by later processes): solve the bench, its pose covariance,
+    the click's point (and the true one), the robot's joints. `fallback`:
     `Options.fallback` of the solve (`False`: the program of the best roots alone, a
     third of the whole algorithm's compilation; `cmd_point` runs the whole one only
     when that finds no pose)."""
-    import jax
-
     from ..api._solve import solve
     from ..apps._pointing import pick
     from ..apps._robot import forward_kinematics, inverse_kinematics
     from ..geometry._pose import Pose
     from ..strategy._covariance import pose_covariance
 
-    def run(C, M, I, pixel, R_true, t_true, faces, click_cov, robot):
-        sol = solve(C, M, I, fallback=fallback)
-        cov = pose_covariance(C, M, I, sol.pose)
-        hit = pick(C, faces, sol.pose, pixel, cov.covariance, click_cov)
-        truth = pick(C, faces, Pose(R_true, t_true), pixel)
-        cmd = inverse_kinematics(robot, hit.point, -hit.normal)
-        return sol, cov, hit, truth, cmd, forward_kinematics(robot, cmd.joints)
+    sol = solve(C, M, I, fallback=fallback)
+    cov = pose_covariance(C, M, I, sol.pose)
+    hit = pick(C, faces, sol.pose, pixel, cov.covariance, click_cov)
+    truth = pick(C, faces, Pose(R_true, t_true), pixel)
+    cmd = inverse_kinematics(robot, hit.point, -hit.normal)
+    return sol, cov, hit, truth, cmd, forward_kinematics(robot, cmd.joints)
 
-    return jax.jit(run)
+
+def _point_pipeline(fallback: bool):
+    """The stored program of `_point_run`."""
+    from ..api._programs import program
+
+    return program(_point_run, fallback)
 
 
 def cmd_point(args) -> int:
@@ -191,7 +192,7 @@ def cmd_point(args) -> int:
         f"{mm(state.tip)} (off by {float(cmd.error):.1e} mm); shank "
         f"{math.degrees(float(cmd.approach_angle)):.1f} deg from the face's inward normal",
     )
-    table.add_row("time", f"{elapsed:.2f} s (compilation included)")
+    table.add_row("time", f"{elapsed:.2f} s")
     console.print(table)
     along = math.sqrt(ray @ S @ ray)
     record(

@@ -171,8 +171,9 @@ def detections_report(
 
 
 def _check_options(args) -> None:
-    if not Path(args.image).is_file():
-        raise CliError(f"{args.image}: no such image file")
+    for item in args.image:
+        if not Path(item).exists():
+            raise CliError(f"{item}: no such image file or folder")
     if not Path(args.camera).is_file():
         raise CliError(f"--camera {args.camera}: no such file")
     if args.noise is not None and not (math.isfinite(args.noise) and args.noise > 0):
@@ -184,11 +185,30 @@ def _check_options(args) -> None:
     check_recording_args(args)
 
 
+#: The image files a folder given to `jaxpose recognize` contributes (sorted by name).
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm")
+
+
+def _image_paths(given: list[str]) -> list[Path]:
+    """The images of `given`: files as they are, folders as their image files by name."""
+    paths: list[Path] = []
+    for item in given:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise CliError(f"{item}: a folder with no image file ({', '.join(IMAGE_SUFFIXES)})")
+            paths += found
+        else:
+            paths.append(path)
+    return paths
+
+
 def cmd_recognize(args) -> int:
     """Run `jaxpose recognize` with the parsed `args`; returns the exit code (0: something
-    is recognised, 1: nothing is)."""
+    is recognised in every image, 1: not)."""
+    import cv2
     import numpy as np
-    from rich.table import Table
 
     from ..features._files import read_camera
 
@@ -199,18 +219,64 @@ def cmd_recognize(args) -> int:
     except ValueError as exc:
         raise CliError(f"--camera {args.camera}: {exc}") from None
     models = _read_models(args.model)
-    import cv2
-
-    picture = cv2.imread(str(args.image), cv2.IMREAD_COLOR)
-    if picture is None:
-        raise CliError(f"{args.image}: not an image OpenCV can read")
+    paths = _image_paths(args.image)
+    pictures = []
+    for path in paths:  # every image read before anything is computed: bad input fails fast
+        picture = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if picture is None:
+            raise CliError(f"{path}: not an image OpenCV can read")
+        pictures.append(picture)
     setup_jax(True)
+    results = [
+        _recognize_one(console, args, str(path), picture, models, K, dist)
+        for path, picture in zip(paths, pictures, strict=True)
+    ]
+    if args.json:
+        from ._problem_write import dumps
+
+        if len(results) == 1:
+            report = {"detections": results[0][1]}
+        else:
+            report = {
+                "images": [{"image": str(p), "detections": r[1]} for p, r in zip(paths, results)]
+            }
+        out = Path(args.json)
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(dumps(report) + "\n")
+        except OSError as exc:
+            raise CliError(f"cannot write --json {out}: {exc.strerror or exc}") from None
+        console.print(f"wrote {out}")
+    if wants_recording(args):
+        from ..viz._rerun_recognition import log_recognition
+
+        meshes = _meshes_for_textured(models)
+
+        def log(rec):
+            import rerun as rr
+
+            for i, ((found, _), picture) in enumerate(zip(results, pictures, strict=True)):
+                if len(results) > 1:
+                    rr.set_time("image", sequence=i, recording=rec)
+                shown = picture if not np.any(dist) else cv2.undistort(picture, K, dist)
+                log_recognition(rec, found, models, K, meshes=meshes, image=shown[..., ::-1].copy())
+
+        what = str(paths[0]) if len(paths) == 1 else f"{len(paths)} images"
+        make_recording(args, console, f"jaxpose recognize {what}", log)
+    return 0 if all(rows for _, rows in results) else 1
+
+
+def _recognize_one(console, args, name: str, picture, models, K, dist):
+    """One image recognised and reported: `(found, rows)`."""
+    import numpy as np
+    from rich.table import Table
+
     from ..apps._recognize import recognize
 
     options = {
         k: v for k, v in (("noise", args.noise), ("min_support", args.min_support)) if v is not None
     }
-    with console.status("compiling and recognising..."):
+    with console.status(f"recognising {name}..."):
         t0 = time.perf_counter()
         try:
             found = recognize(picture, models, K, dist, **options)
@@ -223,7 +289,7 @@ def cmd_recognize(args) -> int:
     def vec(v) -> str:
         return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
 
-    table = Table(title=f"recognised in {args.image} ({elapsed:.2f} s, compilation included)")
+    table = Table(title=f"recognised in {name} ({elapsed:.2f} s)")
     for column in ("model", "path", "score", "rvec (rad)", "tvec", "matched"):
         table.add_column(column)
     for row in rows:
@@ -238,10 +304,11 @@ def cmd_recognize(args) -> int:
         table.add_row(row["model"], row["kind"], score, vec(row["rvec"]), vec(row["tvec"]), matched)
     if rows:
         console.print(table)
-    for name, pose in found.textured.items():
+    for model_name, pose in found.textured.items():
         if not pose.ok:
             console.print(
-                f"{name}: no pose agrees with enough of its {len(pose.inliers)} keypoint matches"
+                f"{model_name}: no pose agrees with enough of its {len(pose.inliers)} "
+                "keypoint matches"
             )
     if found.primitives is not None:
         p = found.primitives
@@ -250,27 +317,5 @@ def cmd_recognize(args) -> int:
             f"{len(p.vertices.points)} vertices, {int(np.sum(np.triu(p.links, 1)))} links"
         )
     if not rows:
-        console.print(f"nothing recognised in {args.image}")
-    if args.json:
-        from ._problem_write import dumps
-
-        out = Path(args.json)
-        try:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(dumps({"detections": rows}) + "\n")
-        except OSError as exc:
-            raise CliError(f"cannot write --json {out}: {exc.strerror or exc}") from None
-        console.print(f"wrote {out}")
-    if wants_recording(args):
-        from ..viz._rerun_recognition import log_recognition
-
-        shown = picture if not np.any(dist) else cv2.undistort(picture, K, dist)
-        make_recording(
-            args,
-            console,
-            f"jaxpose recognize {args.image}",
-            lambda rec: log_recognition(
-                rec, found, models, K, meshes=meshes, image=shown[..., ::-1].copy()
-            ),
-        )
-    return 0 if rows else 1
+        console.print(f"nothing recognised in {name}")
+    return found, rows

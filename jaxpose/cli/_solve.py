@@ -9,7 +9,6 @@ and mapped back to the world frame."""
 
 from __future__ import annotations
 
-import functools
 import time
 from pathlib import Path
 
@@ -19,24 +18,25 @@ from ._recording import check_recording_args, make_recording, wants_recording
 __all__ = ["cmd_solve"]
 
 
-@functools.cache
-def _per_triplet_fn(n: int, method: str, threshold: float | None, nonlinear_budget: int | None):
-    """Jitted per-triplet results for `n` matches: the three-point poses (`Initial`) for
-    `method="three_point"`, else the mixed algorithm's `MixedResult` (cached per process)."""
-    import jax
-
+def _per_triplet_run(C, M, I, mask, method: str, threshold, nonlinear_budget):
+    """Every triplet's results for recordings (a stored program per method and budget):
+    the three-point poses (`Initial`) for `method="three_point"`, else the mixed
+    algorithm's `MixedResult`."""
     from ..geometry._pose import observations
     from ..strategy import Options, initial_poses, mixed, triplet_indices
 
-    triplets = triplet_indices(n, Options().max_triplets)
+    triplets = triplet_indices(M.shape[0], Options().max_triplets)
+    obs = observations(C, M, I, mask)
+    if method == "three_point":
+        return initial_poses(obs, triplets=triplets)
+    return mixed(obs, threshold=threshold, nonlinear_budget=nonlinear_budget, triplets=triplets)
 
-    def run(C, M, I, mask):
-        obs = observations(C, M, I, mask)
-        if method == "three_point":
-            return initial_poses(obs, triplets=triplets)
-        return mixed(obs, threshold=threshold, nonlinear_budget=nonlinear_budget, triplets=triplets)
 
-    return jax.jit(run)
+def _per_triplet_fn(n: int, method: str, threshold: float | None, nonlinear_budget: int | None):
+    """The stored program of `_per_triplet_run` (`n` is the arguments' own)."""
+    from ..api._programs import program
+
+    return program(_per_triplet_run, method, threshold, nonlinear_budget)
 
 
 def _per_triplet(console, camera, model, image, mask, threshold, *, method, nonlinear_budget):
@@ -63,67 +63,59 @@ def _per_triplet(console, camera, model, image, mask, threshold, *, method, nonl
         return jax.tree.map(np.asarray, out)
 
 
-@functools.cache
-def _solve_fn(method: str, threshold: float | None):
-    """`jaxpose.solve` jitted for one method and threshold (cached per process)."""
-    import jax
+def _image_pass(camera, K, dist, model, observed, image, mask, R, t, R_wc, t_wc, refine: bool):
+    """The pose `(R, t)` (world frame) in the distorted image: refined there when
+    `refine` (`refine_in_image`, in the camera frame `x_cam = R_wc (R m + t) + t_wc`,
+    then back to the world frame; `error` and `pose_error` recomputed at the new pose),
+    and the RMS pixel error in the image as observed. One stored program per `refine`
+    (`jaxpose.api._programs`). Returns `(R, t, error, pose_error, image_rms)` (the
+    errors `-1` when not refined: the solution's stand)."""
+    import jax.numpy as jnp
 
-    from ..api._solve import solve
+    from ..api._pnp import REFINE_STEPS
+    from ..geometry._distortion import project_points, refine_in_image
+    from ..geometry._errors import pose_error, reprojection_rms
+    from ..geometry._rotation import matrix_to_rotvec, rotvec_to_matrix
 
-    return jax.jit(functools.partial(solve, method=method, threshold=threshold))
-
-
-@functools.cache
-def _refine_fn():
-    """`refine_in_image` jitted (cached per process)."""
-    import jax
-
-    from ..geometry._distortion import refine_in_image
-
-    return jax.jit(refine_in_image, static_argnames=("iterations",))
+    rvec_cam, t_cam = matrix_to_rotvec(R_wc @ R), R_wc @ t + t_wc
+    if refine:
+        rv, tv, rms = refine_in_image(
+            K, dist, model, observed, mask, rvec_cam, t_cam, iterations=REFINE_STEPS
+        )
+        R, t = R_wc.T @ rotvec_to_matrix(rv), R_wc.T @ (tv - t_wc)
+        where = (camera, R, t, model, image, mask)
+        return R, t, reprojection_rms(*where), pose_error(*where), rms
+    seen = project_points(model, rvec_cam, t_cam, K, dist)
+    d2 = jnp.sum((seen - observed) ** 2, axis=1)
+    rms = jnp.sqrt(jnp.sum(d2 * mask) / jnp.maximum(jnp.sum(mask), 1))
+    return R, t, -jnp.ones_like(rms), -jnp.ones_like(rms), rms
 
 
 def _in_image(problem, sol, R_wc, t_wc, refine: bool):
-    """The solution with its pose refined in the distorted image when `refine` (camera
-    frame, then back to the world frame; `error` and `pose_error` recomputed at the new
-    pose), and the RMS pixel error in the image as observed: `(sol, image_rms)`."""
-    import jax.numpy as jnp
+    """The solution with its pose refined in the distorted image when `refine`, and the
+    RMS pixel error in the image as observed: `(sol, image_rms)` (`_image_pass`)."""
     import numpy as np
 
-    from ..api._pnp import REFINE_STEPS
-    from ..geometry._distortion import project_points
-    from ..geometry._errors import pose_error, reprojection_rms
+    from ..api._programs import program
     from ..geometry._pose import Pose
-    from ..geometry._rotation import matrix_to_rotvec, rotvec_to_matrix
 
     n = len(problem.model_points)
     mask = np.ones(n, bool) if problem.mask is None else np.asarray(problem.mask, bool)
-    R, t = np.asarray(sol.pose.R), np.asarray(sol.pose.t)
-    rvec_cam = np.asarray(matrix_to_rotvec(R_wc @ R))
-    t_cam = R_wc @ t + t_wc
+    f64 = (
+        problem.camera,
+        problem.K,
+        problem.dist,
+        problem.model_points,
+        problem.observed_points,
+        problem.image_points,
+    )
+    pose = (sol.pose.R, sol.pose.t, R_wc, t_wc)
+    args = [np.asarray(a, np.float64) for a in f64] + [mask]
+    args += [np.asarray(a, np.float64) for a in pose]
+    R, t, error, perr, rms = (np.asarray(a) for a in program(_image_pass, refine)(*args))
     if refine:
-        rv, tv, rms = _refine_fn()(
-            jnp.asarray(problem.K, jnp.float64),
-            jnp.asarray(problem.dist, jnp.float64),
-            jnp.asarray(problem.model_points, jnp.float64),
-            jnp.asarray(problem.observed_points, jnp.float64),
-            jnp.asarray(mask),
-            jnp.asarray(rvec_cam, jnp.float64),
-            jnp.asarray(t_cam, jnp.float64),
-            iterations=REFINE_STEPS,
-        )
-        R_cam, t_cam = np.asarray(rotvec_to_matrix(rv)), np.asarray(tv)
-        R, t = R_wc.T @ R_cam, R_wc.T @ (t_cam - t_wc)
-        where = (problem.camera, R, t, problem.model_points, problem.image_points, mask)
-        sol = sol._replace(
-            pose=Pose(R, t),
-            error=np.asarray(reprojection_rms(*where)),
-            pose_error=np.asarray(pose_error(*where)),
-        )
-        return sol, float(rms)
-    seen = project_points(problem.model_points, rvec_cam, t_cam, problem.K, problem.dist)
-    d2 = np.sum((np.asarray(seen) - problem.observed_points) ** 2, axis=1)
-    return sol, float(np.sqrt(np.sum(d2 * mask) / max(int(mask.sum()), 1)))
+        sol = sol._replace(pose=Pose(R, t), error=error, pose_error=perr)
+    return sol, float(rms)
 
 
 def cmd_solve(args) -> int:
@@ -160,25 +152,30 @@ def cmd_solve(args) -> int:
         raise CliError(str(exc)) from None
 
     setup_jax(True)
+    import cv2
     import jax
     import numpy as np
 
     from ..geometry._camera import decompose_camera
-    from ..geometry._rotation import matrix_to_rotvec
     from ..solvers._status import Status
     from ..strategy import Options, triplet_indices
 
     n = len(problem.model_points)
     triplets = triplet_indices(n, Options().max_triplets)
-    run = _solve_fn(args.method, args.threshold)
-    with console.status(
-        f"compiling and solving ({args.method}, {n} matches, {len(triplets)} triplets)..."
-    ):
+    from ..api._solve import solve
+
+    with console.status(f"solving ({args.method}, {n} matches, {len(triplets)} triplets)..."):
         t0 = time.perf_counter()
-        sol = jax.tree.map(
-            np.asarray,
-            run(problem.camera, problem.model_points, problem.image_points, problem.mask),
+        # a stored program (compiled once per bucket of matches, loaded by later runs)
+        sol = solve(
+            problem.camera,
+            problem.model_points,
+            problem.image_points,
+            problem.mask,
+            method=args.method,
+            threshold=args.threshold,
         )
+        sol = jax.tree.map(np.asarray, sol)
         elapsed = time.perf_counter() - t0
     code = Status(int(sol.status))
     accepted = bool(sol.accepted)
@@ -193,9 +190,9 @@ def cmd_solve(args) -> int:
         with console.status("refining the pose in the distorted image..."):
             sol, image_rms = _in_image(problem, sol, R_wc, t_wc, refine)
     R, t = np.asarray(sol.pose.R), np.asarray(sol.pose.t)
-    rvec = np.asarray(matrix_to_rotvec(R))
+    rvec = cv2.Rodrigues(R)[0].ravel()
     R_cam, t_cam = R_wc @ R, R_wc @ t + t_wc
-    rvec_cam = np.asarray(matrix_to_rotvec(R_cam))
+    rvec_cam = cv2.Rodrigues(R_cam)[0].ravel()
     ijk = [int(i) for i in np.asarray(sol.triplet)]
 
     def vec(v) -> str:
@@ -222,7 +219,7 @@ def cmd_solve(args) -> int:
     table.add_row("t (model to world)", vec(t))
     table.add_row("camera frame rvec, tvec", f"{vec(rvec_cam)}, {vec(t_cam)}")
     table.add_row("from triplet", f"matches {ijk[0]}, {ijk[1]}, {ijk[2]}")
-    table.add_row("method", f"{args.method}, solved in {elapsed:.2f} s (compilation included)")
+    table.add_row("method", f"{args.method}, solved in {elapsed:.2f} s")
     console.print(table)
     if args.out:
         from ._problem_write import dumps

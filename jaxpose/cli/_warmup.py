@@ -1,4 +1,4 @@
-"""`jaxpose warmup`: build the compiled programs of `solve_pnp` and `solve_pnp_batch` ahead
+"""`jaxpose warmup`: build the compiled programs of `solve_pnp`, `solve` and `solve_pnp_batch` ahead
 of time, into the program cache (`jaxpose.api._programs`), with a progress bar."""
 
 from __future__ import annotations

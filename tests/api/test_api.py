@@ -2,15 +2,15 @@
 
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 import jaxpose as jp
+from jaxpose.apps import sample_path
 
-DATA = Path(__file__).parents[1] / "data" / "chessboard"
+DATA = sample_path("chessboard")
 
 
 def _opencv_scene(rng, n=10, noise=1.0, kind="ordinary"):

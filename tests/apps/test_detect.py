@@ -197,3 +197,18 @@ def test_edges_pull_a_pose_onto_the_segments(database):
     R2, t2 = refine_on_edges(K, R0, t0, model, none, np.zeros((0, 2)), np.zeros((0, 2, 2)))
     np.testing.assert_array_equal(R2, R0)
     np.testing.assert_array_equal(t2, t0)
+
+
+def test_overlapping_pictures_are_one_object():
+    """Two poses of one model whose pictures mostly cover each other count as one object
+    (`detect` keeps the better), side by side as two."""
+    from jaxpose.apps._detect_verify import MAX_OVERLAP, _outline, _overlap
+
+    K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    model = jp.apps.read_ply(jp.apps.sample_path("opencv_pose_box", "box.ply"))  # 26 cm
+    here = _outline(K, np.eye(3), np.array([0.0, 0, 100]), model)
+    nudged = _outline(K, np.eye(3), np.array([1.0, 0, 102]), model)
+    beside = _outline(K, np.eye(3), np.array([80.0, 0, 100]), model)
+    assert _overlap(here, here) == pytest.approx(1.0)
+    assert _overlap(here, nudged) > MAX_OVERLAP
+    assert _overlap(here, beside) == 0.0

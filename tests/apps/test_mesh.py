@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxpose.apps import Polyhedron, read_ply, write_ply
+from jaxpose.apps import Polyhedron, read_ply, sample_path, write_ply
 from jaxpose.apps._polyhedron import polygon_normals, prism
 
-BOX = Path(__file__).resolve().parents[1] / "data" / "opencv_pose_box" / "box.ply"
+BOX = sample_path("opencv_pose_box", "box.ply")
 BOX_EDGES = {(0, 1), (0, 2), (0, 4), (1, 3), (1, 5), (2, 3), (2, 6), (3, 7), (4, 5)}
 BOX_EDGES |= {(4, 6), (5, 7), (6, 7)}
 

@@ -3,19 +3,18 @@ cookie box), matches to pose by jaxpose's robust mode, compared with
 `cv2.solvePnPRansac` on the same matches."""
 
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from jaxpose.apps import TexturedPose, locate_matches, locate_textured, read_ply
+from jaxpose.apps import TexturedPose, locate_matches, locate_textured, read_ply, sample_path
 from jaxpose.apps._bench import random_rotation
 from jaxpose.features import Matches, read_textured_model
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "opencv_pose_box"
+DATA = sample_path("opencv_pose_box")
 K = np.array([[1384.484, 0.0, 359.0], [0.0, 1385.235, 240.0], [0.0, 0.0, 1.0]])
-# The box's pose in this photograph (tests/data/README.md, opencv_pose_box/), and the
+# The box's pose in this photograph (jaxpose/data/README.md, opencv_pose_box/), and the
 # pixels its eight vertices project to.
 RVEC = np.array([2.0544509, -0.7867391, 0.3140298])
 TVEC = np.array([-1.0903726, 11.6255476, 91.0700533])

@@ -5,7 +5,6 @@ calibration file), recordings, one-line errors, `--help`."""
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,11 +12,12 @@ import pytest
 from helpers import chessboard_corners
 
 import jaxpose as jp
+from jaxpose.apps import sample_path
 from jaxpose.cli._main import build_parser, main
 from jaxpose.cli._problem_read import read_problem
 from jaxpose.cli._problem_write import bench_problem
 
-DATA = Path(__file__).parents[1] / "data" / "chessboard"
+DATA = sample_path("chessboard")
 
 
 def _run(capsys, *argv):

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from helpers import verify_recording
 
-from jaxpose.apps import read_ply
+from jaxpose.apps import read_ply, sample_path
 from jaxpose.cli._main import main
 from jaxpose.features import write_camera
 
-DATA = Path(__file__).parents[1] / "data" / "opencv_pose_box"
+DATA = sample_path("opencv_pose_box")
 PHOTO = DATA / "resized_IMG_3875.JPG"
 MESH = DATA / "box.ply"
 TEXTURED = DATA / "cookies_ORB.yml.gz"
 K = np.array([[1384.484, 0.0, 359.0], [0.0, 1385.235, 240.0], [0.0, 0.0, 1.0]])
-# The box's pose in the photograph found with OpenCV alone (tests/data/README.md).
+# The box's pose in the photograph found with OpenCV alone (jaxpose/data/README.md).
 REF_RVEC = np.array([2.05445, -0.78674, 0.31403])
 REF_TVEC = np.array([-1.0904, 11.6255, 91.0701])
 BOX = read_ply(MESH)
@@ -131,6 +131,8 @@ def test_vertex_path(runs):
     assert run["rc"] == (0 if report["detections"] else 1)
     assert "image primitives:" in run["out"]
     assert report["detections"], "the box is not recognised in the photograph"
+    # one box, one detection (not two matched to nearby junctions of the same box)
+    assert [d["model"] for d in report["detections"]] == ["box"]
     best = report["detections"][0]
     assert best["model"] == "box" and best["kind"] == "vertex"
     assert best["support"] >= 0.6  # the default --min-support
@@ -152,7 +154,7 @@ def test_vertex_path(runs):
 
 
 # The seven visible corners measured on the photograph itself, independently of both
-# recognition paths (tests/data/opencv_pose_box/README.md and corners.csv; vertex 3 is
+# recognition paths (jaxpose/data/opencv_pose_box/README.md and corners.csv; vertex 3 is
 # hidden). The mesh fits them to 2.0 px RMS (3.2 px at most).
 MEASURED = np.loadtxt(DATA / "corners.csv", delimiter=",")[:, 1:]
 
@@ -308,3 +310,29 @@ def test_distorted_photograph(tmp_path, capsys, runs):
     corners = cv2.projectPoints(BOX.vertices, rvec, tvec, K, dist)[0].reshape(-1, 2)
     reference = cv2.projectPoints(BOX.vertices, REF_RVEC, REF_TVEC, K, dist)[0].reshape(-1, 2)
     assert np.linalg.norm(corners - reference, axis=1).max() < 4.0
+
+
+def test_several_images_in_one_process(tmp_path, capsys, runs):
+    """A folder (its images sorted by name) and a file: each recognised in turn in one
+    process, one table each; the JSON lists the images with their detections, the same
+    as each image alone."""
+    import shutil
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for name in ("b.jpg", "a.JPG"):
+        shutil.copy(PHOTO, folder / name)
+    (folder / "notes.txt").write_text("not an image")
+    camera = tmp_path / "camera.yml"
+    write_camera(camera, K)
+    out_json = tmp_path / "all.json"
+    argv = ["recognize", str(folder), str(PHOTO), "--camera", str(camera)]
+    rc = main([*argv, "--model", str(MESH), "--json", str(out_json)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    report = json.loads(out_json.read_text())
+    assert [Path(r["image"]).name for r in report["images"]] == ["a.JPG", "b.jpg", PHOTO.name]
+    alone = runs["vertex"]["json"]["detections"]
+    for r in report["images"]:
+        assert [d["tvec"] for d in r["detections"]] == [d["tvec"] for d in alone]
+    assert out.count("recognised in") == 3

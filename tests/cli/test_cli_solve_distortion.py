@@ -5,6 +5,7 @@ world frame of a general camera `K [R_wc | t_wc]`, and its RMS image error."""
 import json
 
 import cv2
+import jax
 import numpy as np
 import pytest
 
@@ -97,12 +98,12 @@ def test_without_the_refinement_the_pose_differs(tmp_path, capsys, problem):
     OpenCV's with this lens: its pose differs by 1e4 times the tolerance above and its
     image error is larger. `three_point` keeps its three-point pose (no refinement)."""
     from jaxpose.cli._problem_read import read_problem
-    from jaxpose.cli._solve import _solve_fn
 
     _, _, err, res = _solve(tmp_path, capsys, problem)
     p = read_problem(tmp_path / "problem.json")
-    # the command's own compiled solve, before its refinement
-    sol = _solve_fn("linear", None)(p.camera, p.model_points, p.image_points, p.mask)
+    # the command's own solve (a stored program), before its refinement
+    with jax.enable_x64(True):
+        sol = jp.solve(p.camera, p.model_points, p.image_points, p.mask, method="linear")
     R, t = np.asarray(sol.pose.R), np.asarray(sol.pose.t)
     R_cam, t_cam = p.R_wc @ R, p.R_wc @ t + p.t_wc
     rv, tv = _opencv_optimum(problem["model"], problem["image"])

@@ -1,13 +1,12 @@
 """Tests of jaxpose.features._files: OpenCV camera files read and written."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from jaxpose.apps import sample_path
 from jaxpose.features import read_camera, write_camera
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = sample_path()
 K = np.array([[800.0, 0.5, 320.0], [0.0, 810.0, 240.0], [0.0, 0.0, 1.0]])
 
 

@@ -1,17 +1,16 @@
 """Tests of jaxpose.features._keypoints: OpenCV's textured model read, and the box
 photograph's keypoints matched to it."""
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
+from jaxpose.apps import sample_path
 from jaxpose.features import Matches, TexturedModel, match_keypoints, read_textured_model
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "opencv_pose_box"
+DATA = sample_path("opencv_pose_box")
 K = np.array([[1384.484, 0.0, 359.0], [0.0, 1385.235, 240.0], [0.0, 0.0, 1.0]])
-# The box's pose in this photograph (tests/data/README.md, opencv_pose_box/).
+# The box's pose in this photograph (jaxpose/data/README.md, opencv_pose_box/).
 RVEC = np.array([2.0544509, -0.7867391, 0.3140298])
 TVEC = np.array([-1.0903726, 11.6255476, 91.0700533])
 

@@ -3,7 +3,6 @@ the model database and on a photograph of a box; argument checks and empty image
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
+from jaxpose.apps import sample_path
 from jaxpose.features import (
     Primitives,
     Segments,
@@ -24,7 +24,7 @@ from jaxpose.features import (
 )
 from jaxpose.viz import rendered_scene
 
-PHOTO = Path(__file__).parents[1] / "data" / "opencv_pose_box" / "resized_IMG_3875.JPG"
+PHOTO = sample_path("opencv_pose_box") / "resized_IMG_3875.JPG"
 DATABASE = jp.apps.model_database()
 
 

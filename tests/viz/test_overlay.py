@@ -3,16 +3,15 @@ the renderer's faces where the model is, and argument validation."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 from matplotlib.path import Path as PolygonPath
 
 import jaxpose as jp
+from jaxpose.apps import sample_path
 
-DATA = Path(__file__).parents[1] / "data" / "chessboard"
+DATA = sample_path("chessboard")
 K = np.array([[400.0, 0.0, 160.0], [0.0, 400.0, 120.0], [0.0, 0.0, 1.0]])
 CAMERA = np.column_stack([K, np.zeros(3)])
 
