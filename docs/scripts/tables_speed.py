@@ -441,7 +441,13 @@ def costs(results: Path) -> str:
 
     sqpnp = "`solvePnP` SQPNP + `solvePnPRefineLM`"
     lat = speed_d["latency"]["bench"]
-    row("`solve_pnp`, one problem (n = 16)", 1e-3 * lat["ms"], sqpnp, 1e-6 * lat["sqpnp_lm_us"], speed_d)
+    row(
+        "`solve_pnp`, one problem (n = 16)",
+        1e-3 * lat["ms"],
+        sqpnp,
+        1e-6 * lat["sqpnp_lm_us"],
+        speed_d,
+    )
     big = speed_d["batch"][-1]
     row(
         f"`solve_pnp_batch`, per problem of {big['B']:,} (n = 16)",
@@ -463,6 +469,8 @@ def costs(results: Path) -> str:
     except (Missing, KeyError):
         pass
     header = ("call", "jaxpose", "OpenCV", "jaxpose is", "CPU")
-    return table(header, rows) + "\n\n" + caption(
-        speed_d, speed_name, "robust.json", command="make bench"
+    return (
+        table(header, rows)
+        + "\n\n"
+        + caption(speed_d, speed_name, "robust.json", command="make bench")
     )
