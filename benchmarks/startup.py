@@ -9,6 +9,12 @@ Every figure is measured in a fresh Python process (`spawn`), with the program c
   median of three processes);
 - `new_n`: in a process that has solved a 16-point problem, the first call with 13 points
   (the same bucket: no compilation);
+- `solve_warm`, `solve_second`: a plain `jaxpose.solve` (not jitted; float64, the bench,
+  n = 16) in a new process once the cache holds its program: import + first result,
+  then the second call;
+- `cli_solve`, `cli_point`, `cli_recognize`: the whole `jaxpose solve bench.json`,
+  `jaxpose point --pixel 445 240` and `jaxpose recognize` of the box photograph (its
+  mesh), each the second run of its command (the first builds the caches);
 - `demo`: `make demo`'s command (`jaxpose reproduce --no-figures`) run twice, the second
   time with its caches built.
 
@@ -37,6 +43,11 @@ TARGETS = {
     "warm": ("fresh process, cache built: import + first solve_pnp (n = 16)", 1.5),
     "cold": ("new machine, empty cache: import + first solve_pnp (n = 16)", 6.0),
     "new_n": ("a new n inside a compiled bucket (16 -> 13): first call", 0.05),
+    "solve_warm": ("fresh process, cache built: import + first plain jp.solve (bench)", 1.5),
+    "solve_second": ("the second plain jp.solve call of that process", 0.005),
+    "cli_solve": ("jaxpose solve bench.json, whole command, caches built", 2.0),
+    "cli_point": ("jaxpose point --pixel 445 240, whole command, caches built", 2.0),
+    "cli_recognize": ("jaxpose recognize, the box photograph, whole command, caches built", 2.0),
     "demo_second": ("make demo (jaxpose reproduce), second run", 10.0),
 }
 
@@ -63,11 +74,20 @@ def problem(n, seed=0):
 
 problems = [problem(n) for n in spec["points"]]
 t0 = time.perf_counter()
+import jax
+if spec.get("entry") == "solve":
+    jax.config.update("jax_enable_x64", True)
 import jaxpose as jp
 from jaxpose.api import _programs
 
 out = {"import_s": time.perf_counter() - t0, "calls": []}
-for obj, img, K in problems:
+if spec.get("entry") == "solve":  # a plain jp.solve on the bench, twice
+    bench = jp.apps.default_bench()
+    for _ in range(2):
+        s = time.perf_counter()
+        sol = jax.block_until_ready(jp.solve(bench.camera, bench.model_points, bench.image_points))
+        out["calls"].append({"n": 16, "s": time.perf_counter() - s, "ok": bool(sol.accepted)})
+for obj, img, K in problems if spec.get("entry") != "solve" else ():
     s = time.perf_counter()
     ok, _, _ = jp.solve_pnp(obj, img, K)
     out["calls"].append({"n": len(obj), "s": time.perf_counter() - s, "ok": bool(ok)})
@@ -103,6 +123,45 @@ def _demo(cache: Path, out: Path) -> float:
     return time.perf_counter() - t0
 
 
+def _command(argv: list[str], cache: Path, cwd: Path) -> dict:
+    """The `jaxpose` command `argv` run twice in fresh processes (the caches in `cache`):
+    the wall time of each, the exit code of the second."""
+    env = dict(os.environ, JAXPOSE_CACHE_DIR=str(cache))
+    exe = Path(sys.executable).parent / "jaxpose"
+    times, rc = [], None
+    for _ in range(2):
+        t0 = time.perf_counter()
+        proc = subprocess.run(
+            [str(exe), *argv], cwd=cwd, env=env, capture_output=True, timeout=1800
+        )
+        times.append(time.perf_counter() - t0)
+        rc = proc.returncode
+    return {"argv": argv, "first_s": times[0], "second_s": times[1], "rc": rc}
+
+
+def _commands(cache: Path, work: Path) -> dict:
+    """`cli_solve`, `cli_point`, `cli_recognize` (module docstring)."""
+    import numpy as np
+
+    from jaxpose.apps import sample_path
+    from jaxpose.features import write_camera
+
+    work.mkdir(parents=True, exist_ok=True)
+    box = sample_path("opencv_pose_box")
+    K = np.array([[1384.484, 0, 359], [0, 1385.235, 240], [0, 0, 1]])
+    write_camera(work / "camera.yml", K)
+    exe = Path(sys.executable).parent / "jaxpose"
+    subprocess.run(
+        [str(exe), "solve", "--write-example", "bench.json"], cwd=work, check=True, timeout=600
+    )
+    recognize = [str(box / "resized_IMG_3875.JPG"), "--model", str(box / "box.ply")]
+    return {
+        "cli_solve": _command(["solve", "bench.json", "--out", "pose.json"], cache, work),
+        "cli_point": _command(["point", "--pixel", "445", "240"], cache, work),
+        "cli_recognize": _command(["recognize", *recognize, "--camera", "camera.yml"], cache, work),
+    }
+
+
 def measure(quick: bool = False) -> dict:
     """Every figure of the module docstring, each in a fresh process."""
     res: dict = {}
@@ -125,6 +184,15 @@ def measure(quick: bool = False) -> dict:
                 figures[key] = r["import_s"] + r["calls"][0]["s"]
         if "failed" not in new_n:
             figures["new_n"] = new_n["calls"][1]["s"]
+        _spawn({"entry": "solve", "points": []}, cache)  # builds its program
+        solve = _spawn({"entry": "solve", "points": []}, cache)
+        res["solve"] = solve
+        if "failed" not in solve:
+            figures["solve_warm"] = solve["import_s"] + solve["calls"][0]["s"]
+            figures["solve_second"] = solve["calls"][1]["s"]
+        res["commands"] = _commands(Path(tmp) / "cli-cache", Path(tmp) / "cli")
+        for key, r in res["commands"].items():
+            figures[key] = r["second_s"]
         if not quick:
             demo_cache = Path(tmp) / "demo-cache"
             first = _demo(demo_cache, Path(tmp) / "out1")

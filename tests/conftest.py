@@ -55,7 +55,6 @@ SLOW_FIRST = (
     "test_recognition.py",
     "test_kernel_linear.py",
     "test_mixed_planar.py",
-    "differentiable_pose.ipynb",
     "test_rerun.py",
     "test_cli_warmup.py",
 )

@@ -1,6 +1,7 @@
 """MkDocs hooks (`hooks:` in `mkdocs.yml`): before every build, write the benchmark tables
 and plots of `benchmarks/results/` into `docs/generated/` (`tables.py`), where the pages
-include them, so that the site always shows the saved results."""
+include them, so that the site always shows the saved results; and copy the notebooks
+into `docs/generated/notebooks/`, where the build executes them into pages."""
 
 from __future__ import annotations
 
@@ -20,4 +21,14 @@ def _tables_module():
 def on_pre_build(config, **kwargs) -> None:
     tables = _tables_module()
     root = Path(config["config_file_path"]).resolve().parent
-    tables.write(root / "benchmarks" / "results", Path(config["docs_dir"]) / "generated")
+    generated = Path(config["docs_dir"]) / "generated"
+    tables.write(root / "benchmarks" / "results", generated)
+    # The notebooks, copied where the site's notebook plugin (mkdocs-jupyter) executes
+    # them and shows their outputs: a notebook that fails fails the build.
+    pages = generated / "notebooks"
+    pages.mkdir(parents=True, exist_ok=True)
+    for notebook in sorted((root / "notebooks").glob("*.ipynb")):
+        target = pages / notebook.name
+        data = notebook.read_bytes()
+        if not target.is_file() or target.read_bytes() != data:
+            target.write_bytes(data)
