@@ -30,7 +30,9 @@ time.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
+import inspect
 import os
 import pickle
 import platform
@@ -66,6 +68,7 @@ __all__ = [
     "fingerprint",
     "program",
     "program_name",
+    "stored_jit",
 ]
 
 #: The environment variable that moves (a folder) or turns off (`off`) the disk cache.
@@ -365,3 +368,41 @@ def program(fn: Callable, *static: Hashable) -> Program:
         name = program_name(fn, static)
         found = _PROGRAMS[key] = Program(lambda *arrays: fn(*arrays, *static), name)
     return found
+
+
+_KEYWORD_PROGRAMS: dict[tuple, Program] = {}
+
+
+def stored_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()):
+    """`jax.jit(fn, static_argnames=...)` whose calls on concrete arrays run a stored
+    `Program` (compiled once per signature and static values, loaded by later processes);
+    traced calls (under the caller's `jit`, `vmap` or `grad`) run `jax.jit(fn)`. Static
+    arguments may be given by position or keyword; their `repr` names the program on
+    disk. Usable as a decorator, with or without arguments."""
+    if fn is None:
+        return functools.partial(stored_jit, static_argnames=static_argnames)
+    jitted = jax.jit(fn, static_argnames=static_argnames)
+    signature = inspect.signature(fn)
+    names = tuple(static_argnames)
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        bound = signature.bind(*args, **kwargs)
+        bound.apply_defaults()
+        static = tuple((k, bound.arguments[k]) for k in names)
+        arrays = tuple(v for k, v in bound.arguments.items() if k not in names)
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(arrays)):
+            return jitted(*args, **kwargs)
+        key = (fn, static)
+        found = _KEYWORD_PROGRAMS.get(key)
+        if found is None:
+            keys = tuple(k for k in bound.arguments if k not in names)
+
+            def run(*values, keys=keys, static=static):
+                return fn(**dict(zip(keys, values, strict=True)), **dict(static))
+
+            name = program_name(fn, (), static)
+            found = _KEYWORD_PROGRAMS[key] = Program(run, name)
+        return found(*arrays)
+
+    return call

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..strategy import Options, split_values
+from ..strategy import Options, escalation, split_values
 from ._pnp import (
     CHUNK,
     _batched_opencv,
@@ -83,17 +83,22 @@ def warm_up_plan(
 
             plan.append((f"{name}, {n} points", build))
 
-        def build_solve(n=n) -> bool:
-            key, values = split_values(options)
-            prog = program(_stored_program, key, True)
-            before = prog.compiled
-            K = np.asarray([[800.0, 0, 320, 0], [0, 800, 240, 0], [0, 0, 1, 0]])
-            shapes = (values, K, np.zeros((1, n, 3)), np.zeros((1, n, 2)), np.ones((1, n), bool))
-            with jax.enable_x64(True):
-                prog.executable(*shapes)
-            return prog.compiled > before
+        key, values = split_values(options)
+        rungs = escalation(key)
+        keys = [rungs[0]] + ([key] if len(rungs) > 1 else [])
+        for k, solve_key in enumerate(keys):
 
-        plan.append((f"solve, {n} points", build_solve))
+            def build_solve(n=n, solve_key=solve_key) -> bool:
+                prog = program(_stored_program, solve_key, True)
+                before = prog.compiled
+                K = np.asarray([[800.0, 0, 320, 0], [0, 800, 240, 0], [0, 0, 1, 0]])
+                shapes = (np.zeros((1, n, 3)), np.zeros((1, n, 2)), np.ones((1, n), bool))
+                with jax.enable_x64(True):
+                    prog.executable(values, K, *shapes)
+                return prog.compiled > before
+
+            what = "solve" if k == 0 else "solve, the whole escalation"
+            plan.append((f"{what}, {n} points", build_solve))
         for B in sorted({min(int(b), CHUNK) for b in batches}):
 
             def build_batch(n=n, B=B) -> bool:

@@ -35,15 +35,19 @@ import itertools
 import math
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
+from ..api._programs import stored_jit
 from ..features._segments import oriented_edge_distance
+from ..geometry._camera import decompose_camera
 from ..geometry._validate import as_camera
 from ._detect_edges import project_vertices
 from ._detect_verify import Detection, Settings, refine_and_verify, vertex_directions
 from ._hypotheses import ModelTables, score_paths
 from ._polyhedron import Polyhedron, polygon_normals
+
+# (A stored program: no operation is traced, lowered and compiled again in every process.)
+_decompose = stored_jit(decompose_camera)
 
 __all__ = ["Detection", "detect"]
 
@@ -114,7 +118,7 @@ def _tables(model: Polyhedron, V: int, F: int, E: int) -> ModelTables:
         pad(np.ones(len(ends)), E),
         ev,
     )
-    return ModelTables(*(jnp.asarray(a, jnp.float32) for a in arrays))
+    return ModelTables(*(np.asarray(a, np.float32) for a in arrays))
 
 
 # --------------------------------------------------------------------------- the image
@@ -249,9 +253,7 @@ def detect(
     if not 0 <= float(min_support) <= 1:
         raise ValueError(f"min_support must lie in [0, 1], got {min_support!r}")
 
-    from ..geometry._camera import decompose_camera
-
-    K, Rc, tc, _ = (np.asarray(a, np.float64) for a in decompose_camera(jnp.asarray(C)))
+    K, Rc, tc, _ = (np.asarray(a, np.float64) for a in _decompose(np.asarray(C, np.float64)))
     H, W = edist.shape
     vdist = _vertex_distance(points, (H, W))
     edist = oriented_edge_distance(primitives.segments, (H, W), BINS)
@@ -265,8 +267,8 @@ def detect(
     V = _round_up(max(len(m.vertices) for m in models.values()))
     F = _round_up(max(len(m.faces) for m in models.values()))
     E = _round_up(max(len(m.edges) for m in models.values()))
-    maps = (jnp.asarray(vdist.reshape(-1)), jnp.asarray(edist.reshape(-1)))
-    radii = (jnp.float32(vertex_radius), jnp.float32(edge_radius), jnp.float32(min_edge))
+    maps = (np.asarray(vdist.reshape(-1)), np.asarray(edist.reshape(-1)))
+    radii = (np.float32(vertex_radius), np.float32(edge_radius), np.float32(min_edge))
     found: list[tuple[float, str, np.ndarray, np.ndarray]] = []
     for name, model in models.items():
         mpaths = _paths(model)
@@ -289,10 +291,10 @@ def detect(
             bearings[n:], model_pts[n:] = bearings[0], model_pts[0]
             mask = (np.arange(size) < n).astype(np.float32)
             out = score_paths(
-                jnp.asarray(K, jnp.float32),
-                jnp.asarray(bearings),
-                jnp.asarray(model_pts),
-                jnp.asarray(mask),
+                np.asarray(K, np.float32),
+                bearings,
+                model_pts,
+                mask,
                 tables,
                 *maps,
                 *radii,

@@ -15,7 +15,6 @@ image holds.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
@@ -24,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..api._programs import stored_jit
 from ..geometry._pose import Pose, observations
 from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
 from ..solvers._kernel_linear import linear_kernel, matches_from_observations
@@ -205,7 +205,7 @@ def _linear(C, model, image, mask, R, t):
     return obs, mat_to_array(R1), vec_to_array(t1), error, status
 
 
-@jax.jit
+@stored_jit
 def _linear_or_start(C, model, image, mask, R, t):
     """`_linear`'s poses, the starting ones kept where it did not converge."""
     _, R1, t1, _, status = _linear(C, model, image, mask, R, t)
@@ -261,12 +261,12 @@ def refine_and_verify(
         pad = Hn - len(rows)
         with jax.enable_x64(True):
             R1, t1 = _linear_or_start(
-                jnp.asarray(C),
-                jnp.asarray(model),
-                jnp.asarray(image),
-                jnp.asarray(mask),
-                jnp.asarray(np.concatenate([Rw, np.repeat(Rw[:1], pad, 0)])),
-                jnp.asarray(np.concatenate([tw, np.repeat(tw[:1], pad, 0)])),
+                np.asarray(C, np.float64),
+                np.asarray(model, np.float64),
+                np.asarray(image, np.float64),
+                np.asarray(mask),
+                np.concatenate([Rw, np.repeat(Rw[:1], pad, 0)]).astype(np.float64),
+                np.concatenate([tw, np.repeat(tw[:1], pad, 0)]).astype(np.float64),
             )
         Rw, tw = np.asarray(R1)[: len(rows)], np.asarray(t1)[: len(rows)]
     ranked = []
@@ -368,7 +368,7 @@ def _overlap(a: np.ndarray, b: np.ndarray) -> float:
     return float(shared) / smaller
 
 
-@functools.partial(jax.jit, static_argnames=("confidence", "min_consensus"))
+@stored_jit(static_argnames=("confidence", "min_consensus"))
 def _judge(C, model, image, mask, R, t, noise, confidence: float, min_consensus: float):
     """The acceptance rule of `verify` (Eq. 8 error and consensus against the
     chi-square bounds of `acceptance_thresholds`) at the poses `(H, 3, 3)`, `(H, 3)`
@@ -397,13 +397,13 @@ def _verify_rows(C, rows, models, points, noise, V, Hn, poses):
     t = np.concatenate([poses[1], np.repeat(poses[1][:1], Hn - len(rows), 0)])
     with jax.enable_x64(True):
         out = _judge(
-            jnp.asarray(C),
-            jnp.asarray(model),
-            jnp.asarray(image),
-            jnp.asarray(mask),
-            jnp.asarray(R),
-            jnp.asarray(t),
-            jnp.asarray(noise, jnp.float64),
+            np.asarray(C, np.float64),
+            np.asarray(model, np.float64),
+            np.asarray(image, np.float64),
+            np.asarray(mask),
+            np.asarray(R, np.float64),
+            np.asarray(t, np.float64),
+            np.asarray(noise, np.float64),
             0.999,
             0.8,
         )

@@ -27,13 +27,13 @@ three arrays (component form): the poses are `(C, 4)` arrays, the projected vert
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from ..api._programs import stored_jit
 from ..solvers._components import Vec3
 from ..solvers._kernel_p3p import p3p_components
 
@@ -101,7 +101,7 @@ def _project(K, R, t, x, y, z):
     return u, v, Z > 0
 
 
-@functools.partial(jax.jit, static_argnames=("width", "height", "top"))
+@stored_jit(static_argnames=("width", "height", "top"))
 def score_paths(
     K: Float[Array, "3 3"],
     bearings: Float[Array, "C 3 3"],

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..api._programs import stored_jit
 from ..api._solve import solve, solve_many
 from ..geometry._pose import Pose, observations, transform
 from ..geometry._validate import as_camera, as_points, no_type_check
@@ -338,7 +339,7 @@ def verify_hypotheses(
     return sorted(verdicts, key=lambda v: (not v.accepted, v.error, v.index))
 
 
-@functools.partial(jax.jit, static_argnames=("confidence", "min_consensus", "max_triplets"))
+@stored_jit(static_argnames=("confidence", "min_consensus", "max_triplets"))
 def _verify_batch(camera, model, image, mask, noise, confidence, min_consensus, max_triplets):
     """`jax.vmap(verify)`'s values, the hypotheses solved batch-first (`solve_many`:
     the fallback runs only for those that need it) and without derivatives (the

@@ -8,11 +8,11 @@ from jaxpose.cli._main import main
 def test_warmup_builds_then_finds(capsys):
     assert main(["warmup", "--points", "12"]) == 0
     out = capsys.readouterr().out
-    assert "4 programs ready" in out
+    assert "5 programs ready" in out
     folder = _programs._folder()
     assert folder is not None and str(folder) in out.replace("\n", "")
     assert main(["warmup", "--points", "9", "16"]) == 0  # the same bucket: nothing new
-    assert "4 programs ready (0 compiled, 4 found)" in capsys.readouterr().out
+    assert "5 programs ready (0 compiled, 5 found)" in capsys.readouterr().out
 
 
 def test_warmup_refuses_bad_counts(capsys):
