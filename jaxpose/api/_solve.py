@@ -191,7 +191,7 @@ def _stored(camera, model, image, mask, options: Options, values, single: bool) 
     # run); the whole escalation only when it leaves a problem without a pose. Where the
     # first rung accepts every problem, the two give the same answer.
     out = program(_stored_program, rungs[0], single)(*args)
-    if len(rungs) > 1 and not np.all(np.asarray(out.accepted)[:B]):
+    if len(rungs) > 1 and not np.all(np.asarray(out.accepted).reshape(-1)[:B]):
         out = program(_stored_program, options, single)(*args)
     return out if rows == B else jax.tree.map(lambda x: x[:B], out)
 

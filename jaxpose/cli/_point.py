@@ -64,7 +64,6 @@ def cmd_point(args) -> int:
     check_recording_args(args)
     setup_jax(True)
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from ..apps._pointing import PointingStatus, polyhedron_faces
@@ -75,15 +74,9 @@ def cmd_point(args) -> int:
     robot = default_robot()
     with console.status("compiling and solving the bench, then pointing..."):
         t0 = time.perf_counter()
-        inputs = (
-            *(jnp.asarray(x) for x in (bench.camera, bench.model_points, bench.image_points)),
-            jnp.asarray([u, v], jnp.float64),
-            jnp.asarray(bench.R),
-            jnp.asarray(bench.t),
-            faces,
-            jnp.asarray(args.click_sigma**2 * np.eye(2)),
-            robot,
-        )
+        f64 = (bench.camera, bench.model_points, bench.image_points, [u, v], bench.R, bench.t)
+        cov = np.asarray(args.click_sigma**2 * np.eye(2))
+        inputs = (*(np.asarray(x, np.float64) for x in f64), faces, cov, robot)
         # The best roots first; the whole mixed algorithm (its own, larger program) only
         # when they leave the bench without a pose: the answer is `solve`'s either way.
         out = _point_pipeline(False)(*inputs)
