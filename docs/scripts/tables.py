@@ -56,6 +56,9 @@ OUT = ROOT / "docs" / "generated"
 
 # Plots saved by the benchmark scripts beside their JSON (the full run's, else the quick one's).
 PLOTS = {
+    # `jaxpose reproduce --out benchmarks/results/experiment` (the paper's Figures 3-4)
+    "experiment_figure3.png": ("experiment/figure3_histogram.png",),
+    "experiment_figure4.png": ("experiment/figure4_cumulative.png",),
     "accuracy_ordinary.png": ("accuracy_ordinary.png",),
     "accuracy_quasi_singular.png": ("accuracy_quasi_singular.png",),
     "accuracy_planar.png": ("accuracy_planar.png",),

@@ -36,12 +36,25 @@ def write_figures(result: ExperimentResult, out_dir: Path) -> list[Path]:
     paths = []
     for name, cumulative in (("figure3_histogram.png", False), ("figure4_cumulative.png", True)):
         fig, ax = plt.subplots(figsize=(7, 4.2), dpi=120)
-        for m in METHOD_NAMES:
+        drawn: dict[str, np.ndarray] = {}
+        for k, m in enumerate(METHOD_NAMES):
             e = np.clip(result.pose_error[m][used], bins[0], bins[-1])
             counts, edges = np.histogram(e, bins=bins)
             share = 100.0 * counts / max(len(e), 1)
             y = np.cumsum(share) if cumulative else share
-            ax.step(edges[1:], y, where="pre", label=METHOD_LABELS[m])
+            # Methods whose curves coincide stay visible: each drawn thinner than the
+            # one below it, in its own dash, and the legend says which it covers.
+            same = [METHOD_LABELS[o] for o, c in drawn.items() if np.array_equal(c, counts)]
+            label = METHOD_LABELS[m] + (f" (same curve as {', '.join(same)})" if same else "")
+            drawn[m] = counts
+            ax.step(
+                edges[1:],
+                y,
+                where="pre",
+                label=label,
+                linewidth=3.2 - 0.8 * k,
+                linestyle=("-", "--", "-.", ":")[k % 4],
+            )
         ax.set_xlabel("pose error (mm)")
         ax.set_ylabel("cumulative samples (%)" if cumulative else "samples (%)")
         title = "Figure 4: cumulative histogram" if cumulative else "Figure 3: histogram"
