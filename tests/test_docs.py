@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -119,3 +120,20 @@ def test_every_layer_has_an_api_page():
         assert page.is_file(), f"no API page for jaxpose.{layer}"
         assert f"::: jaxpose.{layer}\n" in page.read_text(), page
     assert "::: jaxpose\n" in (DOCS / "api" / "index.md").read_text()
+
+
+def test_summary_tables_show_whole_first_sentences():
+    """The API reference's summary tables take a docstring's first line; the docs'
+    griffe extension puts the whole first sentence there (the paragraph renders alike)."""
+    sys.path.insert(0, str(ROOT / "docs" / "scripts"))
+    from griffe_summaries import first_sentence_first
+
+    text = "`solve` for a batch: the same\nanswers as `x.y`. Then more\ntext.\n\nBody."
+    assert first_sentence_first(text) == (
+        "`solve` for a batch: the same answers as `x.y`.\nThen more text.\n\nBody."
+    )
+    assert first_sentence_first("One line.\n\nMore.") == "One line.\n\nMore."
+    import jaxpose
+
+    first = first_sentence_first(jaxpose.solve_many.__doc__.strip()).split("\n")[0]
+    assert first.endswith("computed batch-first.")
