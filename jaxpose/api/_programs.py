@@ -45,6 +45,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from jax.core import Tracer
 
 
 def _version(package: str) -> str:
@@ -373,7 +374,7 @@ def program(fn: Callable, *static: Hashable) -> Program:
 _KEYWORD_PROGRAMS: dict[tuple, Program] = {}
 
 
-def stored_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()):
+def stored_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()) -> Any:
     """`jax.jit(fn, static_argnames=...)` whose calls on concrete arrays run a stored
     `Program` (compiled once per signature and static values, loaded by later processes);
     traced calls (under the caller's `jit`, `vmap` or `grad`) run `jax.jit(fn)`. Static
@@ -391,7 +392,7 @@ def stored_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] =
         bound.apply_defaults()
         static = tuple((k, bound.arguments[k]) for k in names)
         arrays = tuple(v for k, v in bound.arguments.items() if k not in names)
-        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(arrays)):
+        if any(isinstance(x, Tracer) for x in jax.tree.leaves(arrays)):
             return jitted(*args, **kwargs)
         key = (fn, static)
         found = _KEYWORD_PROGRAMS.get(key)

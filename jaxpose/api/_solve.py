@@ -9,6 +9,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 from jaxtyping import ArrayLike, Bool, Real
 
 from ..geometry import as_batched, check_problem, no_type_check
@@ -86,7 +87,7 @@ def solve(
     def one(x):  # a batch of one (numpy for a plain call: no dispatch)
         if x is None:
             return None
-        return x[None] if isinstance(x, jax.core.Tracer) else np.asarray(x)[None]
+        return x[None] if isinstance(x, Tracer) else np.asarray(x)[None]
 
     return _pipeline(camera, one(model), one(image), one(mask), options, single=True)
 
@@ -131,8 +132,8 @@ def _pipeline(camera, model, image, mask, options: Options, single: bool = False
     values (`jaxpose.strategy.split_values`): changing them compiles nothing.
     `single`: one problem (`B = 1`), returned without its batch axis."""
     arrays = (camera, model, image, mask)
-    traced = any(isinstance(x, jax.core.Tracer) for x in arrays)
-    values_traced = any(isinstance(getattr(options, f), jax.core.Tracer) for f in TRACED)
+    traced = any(isinstance(x, Tracer) for x in arrays)
+    values_traced = any(isinstance(getattr(options, f), Tracer) for f in TRACED)
     if values_traced:  # the options' values are the caller's tracers: trace it all
         out = solve_problems(camera, model, image, mask, options)
     else:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any, cast
 
 import jax
 import numpy as np
@@ -118,7 +119,8 @@ def _tables(model: Polyhedron, V: int, F: int, E: int) -> ModelTables:
         pad(np.ones(len(ends)), E),
         ev,
     )
-    return ModelTables(*(np.asarray(a, np.float32) for a in arrays))
+    # numpy arrays: the stored programs take them as they are (no eager conversion)
+    return ModelTables(*(cast(Any, np.asarray(a, np.float32)) for a in arrays))
 
 
 # --------------------------------------------------------------------------- the image

@@ -94,6 +94,8 @@ def _image_pass(camera, K, dist, model, observed, image, mask, R, t, R_wc, t_wc,
 def _in_image(problem, sol, R_wc, t_wc, refine: bool):
     """The solution with its pose refined in the distorted image when `refine`, and the
     RMS pixel error in the image as observed: `(sol, image_rms)` (`_image_pass`)."""
+    from typing import Any, cast
+
     import numpy as np
 
     from ..api._programs import program
@@ -114,7 +116,8 @@ def _in_image(problem, sol, R_wc, t_wc, refine: bool):
     args += [np.asarray(a, np.float64) for a in pose]
     R, t, error, perr, rms = (np.asarray(a) for a in program(_image_pass, refine)(*args))
     if refine:
-        sol = sol._replace(pose=Pose(R, t), error=error, pose_error=perr)
+        pose = Pose(cast(Any, R), cast(Any, t))  # numpy, as the rest of `sol`
+        sol = sol._replace(pose=pose, error=error, pose_error=perr)
     return sol, float(rms)
 
 
