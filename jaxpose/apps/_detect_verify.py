@@ -354,8 +354,7 @@ MAX_OVERLAP = 0.5
 
 def _outline(K, R_cam, t_cam, model: Polyhedron) -> np.ndarray:
     """The convex outline `(k, 2)` float32 of `model`'s vertices projected at the pose."""
-    cam = np.asarray(model.vertices, np.float64) @ np.asarray(R_cam).T + np.asarray(t_cam)
-    uv = cam[:, :2] / np.maximum(cam[:, 2:], 1e-9) @ np.asarray(K)[:2, :2].T + np.asarray(K)[:2, 2]
+    uv = project_vertices(np.asarray(K), np.asarray(R_cam), np.asarray(t_cam), model.vertices)
     return cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["CliError", "new_console", "setup_jax"]
+__all__ = ["CliError", "new_console", "setup_jax", "write_report"]
 
 
 class CliError(Exception):
@@ -41,3 +41,19 @@ def setup_jax(x64: bool = True) -> None:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     except OSError:  # pragma: no cover - read-only home
         pass
+
+
+def write_report(path, report: dict, option: str, console) -> None:
+    """Write a command's JSON `report` to `path` (its folder made), saying so on
+    `console`; a path that cannot be written is a `CliError` naming `option`."""
+    from pathlib import Path
+
+    from ._problem_write import dumps
+
+    out = Path(path)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(dumps(report) + "\n")
+    except OSError as exc:
+        raise CliError(f"cannot write {option} {out}: {exc.strerror or exc}") from None
+    console.print(f"wrote {out}")

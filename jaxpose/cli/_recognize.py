@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ._common import CliError, new_console, setup_jax
+from ._common import CliError, new_console, setup_jax, write_report
 from ._recording import check_recording_args, make_recording, wants_recording
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -227,30 +227,20 @@ def cmd_recognize(args) -> int:
             raise CliError(f"{path}: not an image OpenCV can read")
         pictures.append(picture)
     setup_jax(True)
+    meshes = _meshes_for_textured(models)
     results = [
-        _recognize_one(console, args, str(path), picture, models, K, dist)
+        _recognize_one(console, args, str(path), picture, models, meshes, K, dist)
         for path, picture in zip(paths, pictures, strict=True)
     ]
     if args.json:
-        from ._problem_write import dumps
-
         if len(results) == 1:
             report = {"detections": results[0][1]}
         else:
-            report = {
-                "images": [{"image": str(p), "detections": r[1]} for p, r in zip(paths, results)]
-            }
-        out = Path(args.json)
-        try:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(dumps(report) + "\n")
-        except OSError as exc:
-            raise CliError(f"cannot write --json {out}: {exc.strerror or exc}") from None
-        console.print(f"wrote {out}")
+            pairs = zip(paths, results, strict=True)
+            report = {"images": [{"image": str(p), "detections": r[1]} for p, r in pairs]}
+        write_report(args.json, report, "--json", console)
     if wants_recording(args):
         from ..viz._rerun_recognition import log_recognition
-
-        meshes = _meshes_for_textured(models)
 
         def log(rec):
             import rerun as rr
@@ -266,7 +256,7 @@ def cmd_recognize(args) -> int:
     return 0 if all(rows for _, rows in results) else 1
 
 
-def _recognize_one(console, args, name: str, picture, models, K, dist):
+def _recognize_one(console, args, name: str, picture, models, meshes, K, dist):
     """One image recognised and reported: `(found, rows)`."""
     import numpy as np
     from rich.table import Table
@@ -283,7 +273,6 @@ def _recognize_one(console, args, name: str, picture, models, K, dist):
         except ValueError as exc:
             raise CliError(str(exc)) from None
         elapsed = time.perf_counter() - t0
-    meshes = _meshes_for_textured(models)
     rows = detections_report(found, models, K, dist, meshes)
 
     def vec(v) -> str:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ._common import CliError, new_console, setup_jax
+from ._common import CliError, new_console, setup_jax, write_report
 from ._recording import check_recording_args, make_recording, wants_recording
 
 __all__ = ["cmd_solve"]
@@ -32,8 +32,8 @@ def _per_triplet_run(C, M, I, mask, method: str, threshold, nonlinear_budget):
     return mixed(obs, threshold=threshold, nonlinear_budget=nonlinear_budget, triplets=triplets)
 
 
-def _per_triplet_fn(n: int, method: str, threshold: float | None, nonlinear_budget: int | None):
-    """The stored program of `_per_triplet_run` (`n` is the arguments' own)."""
+def _per_triplet_fn(method: str, threshold: float | None, nonlinear_budget: int | None):
+    """The stored program of `_per_triplet_run` (one per method and budget)."""
     from ..api._programs import program
 
     return program(_per_triplet_run, method, threshold, nonlinear_budget)
@@ -54,7 +54,7 @@ def _per_triplet(console, camera, model, image, mask, threshold, *, method, nonl
     with console.status(
         f"compiling and solving the {what} per triplet ({count} triplets) for the recording..."
     ):
-        out = _per_triplet_fn(n, method, threshold, nonlinear_budget)(
+        out = _per_triplet_fn(method, threshold, nonlinear_budget)(
             jnp.asarray(camera, dtype),
             jnp.asarray(model, dtype),
             jnp.asarray(image, dtype),
@@ -225,8 +225,6 @@ def cmd_solve(args) -> int:
     table.add_row("method", f"{args.method}, solved in {elapsed:.2f} s")
     console.print(table)
     if args.out:
-        from ._problem_write import dumps
-
         report = {
             "accepted": accepted,
             "status": code.name,
@@ -244,13 +242,7 @@ def cmd_solve(args) -> int:
             "matches": n,
             "sources": list(problem.sources),
         }
-        out = Path(args.out)
-        try:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(dumps(report) + "\n")
-        except OSError as exc:
-            raise CliError(f"cannot write --out {out}: {exc.strerror or exc}") from None
-        console.print(f"wrote {out}")
+        write_report(args.out, report, "--out", console)
     if wants_recording(args):
         from ..viz._rerun_solution import log_solution
 
