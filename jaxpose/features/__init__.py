@@ -21,3 +21,6 @@ from ._vertices import Vertices as Vertices
 from ._vertices import find_vertices as find_vertices
 from ._vertices import image_primitives as image_primitives
 from ._vertices import vertex_links as vertex_links
+from ._video import IMAGE_SUFFIXES as IMAGE_SUFFIXES
+from ._video import Frames as Frames
+from ._video import open_frames as open_frames
