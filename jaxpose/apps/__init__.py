@@ -20,6 +20,9 @@ from ._detect import Detection as Detection
 from ._detect import detect as detect
 from ._mesh import read_ply as read_ply
 from ._mesh import write_ply as write_ply
+from ._mesh_formats import read_cao as read_cao
+from ._mesh_formats import read_mesh as read_mesh
+from ._mesh_formats import read_obj as read_obj
 from ._models import chessboard as chessboard
 from ._models import model_bench as model_bench
 from ._models import model_database as model_database
