@@ -56,3 +56,11 @@ from ._samples import sample_path as sample_path
 from ._textured import TexturedPose as TexturedPose
 from ._textured import locate_matches as locate_matches
 from ._textured import locate_textured as locate_textured
+from ._visibility import EdgeSamples as EdgeSamples
+from ._visibility import MeshGeometry as MeshGeometry
+from ._visibility import RayHits as RayHits
+from ._visibility import cast_rays as cast_rays
+from ._visibility import edge_samples as edge_samples
+from ._visibility import face_mask as face_mask
+from ._visibility import front_faces as front_faces
+from ._visibility import mesh_geometry as mesh_geometry
