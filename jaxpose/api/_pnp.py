@@ -43,6 +43,7 @@ from ..strategy import (
     robust,
     rung_applies,
     split_values,
+    triplet_indices,
     with_values,
 )
 from ._batch import run_batched
@@ -347,13 +348,19 @@ def solve_pnp_batch(
         return np.asarray(ok), np.asarray(rvecs, np.float64), np.asarray(tvecs, np.float64)
 
 
+#: The fewest matches `solve_pnp_ransac` solves from (`cv2.solvePnPRansac`'s minimal
+#: set); fewer give `ok` False.
+RANSAC_MIN_MATCHES = 4
+
+
 @functools.partial(jax.jit, static_argnames=("options",))
-def _robust_opencv(K, obj, img, threshold, min_inliers, options: RobustOptions):
+def _robust_opencv(K, obj, img, threshold, min_inliers, triplets, options: RobustOptions):
     res = robust(
         camera_matrix(K),
         obj,
         img,
         options=options,
+        triplets=triplets,
         inlier_threshold=threshold,
         min_inliers=min_inliers,
     )
@@ -368,6 +375,7 @@ def solve_pnp_ransac(
     dist_coeffs: npt.ArrayLike | None = None,
     *,
     reprojection_error: float | None = None,
+    seed: int = 0,
     options: RobustOptions | None = None,
     **changes: Any,
 ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray | None]:
@@ -379,7 +387,16 @@ def solve_pnp_ransac(
     `dist_coeffs` (removed first with `cv2.undistortPoints`, so the inlier test is on
     undistorted pixels). `reprojection_error` is the inlier threshold in pixels (`None`:
     `options.inlier_threshold`, by default OpenCV's 8). Instead of RANSAC's iterations and
-    confidence, every triplet (up to `max_triplets`) is scored.
+    confidence, every triplet (up to `max_triplets`) is scored: the answer is the same on
+    every call. Above `max_triplets` triplets (`C(n, 3)`: n > 23 by default) the triplets
+    scored are a uniform sample drawn with `seed` (an int >= 0, default `0`): the same
+    seed, the same answer; another seed, another sample (no new compilation). Below it,
+    `seed` changes nothing: there is nothing to sample.
+
+    The answer is refitted on its inliers (`jaxpose.robust`'s step 4), never the minimal
+    sample's pose (unless `refine="none"`). Fewer than 4 matches (`cv2.solvePnPRansac`'s
+    minimal set), or fewer inliers than `min_inliers`, give `(False, zeros, zeros,
+    None)`, no exception.
 
     `options`: a `jaxpose.RobustOptions`; `**changes`: keyword shorthands for its fields
     (`min_inliers`, `max_triplets`, `refine`, `iterations`, `rounds`, `max_steps`, ...).
@@ -400,10 +417,15 @@ def solve_pnp_ransac(
         raise ValueError(
             f"reprojection_error must be a positive number, got {reprojection_error!r}"
         )
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed must be an int >= 0, got {seed!r}")
     options = resolve(options, changes, RobustOptions)
     K = as_intrinsics(camera_matrix, "camera_matrix")
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
-    obj, img = as_matching(object_points, image_points, min_count=3)
+    obj, img = as_matching(object_points, image_points, min_count=0)
+    if obj.shape[0] < RANSAC_MIN_MATCHES:
+        return False, np.zeros((3, 1)), np.zeros((3, 1)), None
+    triplets = triplet_indices(obj.shape[0], options.max_triplets, int(seed))
     threshold = options.inlier_threshold if reprojection_error is None else reprojection_error
     # The threshold and the inlier count are traced: one compiled program serves them all.
     program = dataclasses.replace(
@@ -419,6 +441,7 @@ def solve_pnp_ransac(
             jnp.asarray(img, jnp.float64),
             jnp.asarray(threshold, jnp.float64),
             jnp.asarray(options.min_inliers, jnp.int32),
+            jnp.asarray(triplets, jnp.int32),
             program,
         )
         ok = bool(ok)

@@ -81,7 +81,9 @@ def as_points(x: object, name: str, dim: int, *, min_count: int = 1) -> np.ndarr
 
     **Arguments:**
 
-    - `x`: array-like of shape (n, dim), or OpenCV's (n, 1, dim) or (1, n, dim).
+    - `x`: array-like of shape (n, dim), OpenCV's (n, 1, dim) or (1, n, dim), or the
+      transposed (dim, n) where it is unambiguous (`n != dim`); any real dtype, any
+      strides (a list, a non-contiguous view).
     - `name`: the argument's name, used in error messages.
     - `dim`: point dimension (2 for pixels, 3 for model points).
     - `min_count`: the fewest points accepted.
@@ -98,10 +100,12 @@ def as_points(x: object, name: str, dim: int, *, min_count: int = 1) -> np.ndarr
     arr = _as_real_array(x, name)
     if arr.ndim == 3 and arr.shape[2] == dim and (arr.shape[1] == 1 or arr.shape[0] == 1):
         arr = arr.reshape(-1, dim)
+    elif arr.ndim == 2 and arr.shape[0] == dim and arr.shape[1] != dim:
+        arr = arr.T  # (dim, n): one point per column
     if arr.ndim != 2 or arr.shape[1] != dim:
         raise ValueError(
-            f"{name} must have shape (n, {dim}) (or OpenCV's (n, 1, {dim}) / (1, n, {dim})),"
-            f" got {arr.shape}"
+            f"{name} must have shape (n, {dim}) (or OpenCV's (n, 1, {dim}) / (1, n, {dim}),"
+            f" or ({dim}, n)), got {arr.shape}"
         )
     if arr.shape[0] < min_count:
         raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[0]}")

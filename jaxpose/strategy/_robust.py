@@ -12,10 +12,16 @@ fixed seeded sample of `jaxpose.strategy.triplet_indices` above `max_triplets`):
 3. the best root refined on its inliers (the small-movement linear method, or
    Levenberg-Marquardt), inliers recomputed at the refined pose, and refined again
    (`rounds` times). A refinement is kept when it does not lose inliers or lowers the
-   truncated cost.
+   truncated cost;
+4. the answer is refitted on the final inliers (the same refinement, from the pose of
+   step 3, kept whenever it is finite and in front of the camera), as
+   `cv2.solvePnPRansac` refits on its inliers: with a refinement, never the minimal
+   sample's pose. Its inliers are those it was fitted on.
 
 Exhaustive scoring needs no iteration count or confidence: the answer is the
-consensus optimum over all triplets' roots, the same on every call.
+consensus optimum over all triplets' roots, the same on every call. Above
+`max_triplets` triplets, the triplets are a seeded sample (`triplet_indices(n,
+max_triplets, seed)`, or the `triplets` given): the same seed, the same answer.
 `jaxpose.solve_pnp_ransac` wraps it with `cv2.solvePnPRansac`'s conventions; the options
 are a `jaxpose.RobustOptions`.
 """
@@ -90,6 +96,7 @@ def robust(
     mask: Bool[ArrayLike, " n"] | None = None,
     *,
     options: RobustOptions | None = None,
+    triplets: Int[ArrayLike, "T 3"] | None = None,
     **changes,
 ) -> RobustResult:
     r"""The pose of a known object from matches of which some may be wrong (JAX-native).
@@ -106,6 +113,8 @@ def robust(
       radius $\tau$ (`inlier_threshold`) and `min_inliers` (either may be traced, given
       as a keyword shorthand), the refinement (`refine`, `rounds`, `iterations`,
       `max_steps`) and the triplets (`min_area`, `collinear_tol`, `max_triplets`).
+    - `triplets`: `(T, 3)` index triplets to score, possibly traced (default:
+      `triplet_indices(n, max_triplets)`; `solve_pnp_ransac` passes a seeded sample).
     - `**changes`: keyword shorthands for fields of `options`
       (`robust(C, M, I, inlier_threshold=2.0)`); an unknown one raises `ValueError`.
 
@@ -116,7 +125,9 @@ def robust(
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     n = obs.model.shape[0]
-    idx = jnp.asarray(triplet_indices(n, options.max_triplets))
+    idx = jnp.asarray(
+        triplet_indices(n, options.max_triplets) if triplets is None else triplets, jnp.int32
+    )
     thr = jnp.asarray(options.inlier_threshold, dtype)
 
     def candidates(ijk):
@@ -139,23 +150,34 @@ def robust(
     inliers, num, score = _score(obs, pose, thr)
     refined = jnp.zeros((), dtype=bool)
 
-    for _ in range(options.rounds if options.refine != "none" else 0):
+    def refit(pose, inliers):
         local = obs._replace(mask=inliers)
         if options.refine == "linear":
             res = linear_from(local, pose, options.iterations)
         else:
             res = nonlinear(local, pose, max_steps=options.max_steps)
-        new_inliers, new_num, new_score = _score(obs, res.pose, thr)
-        keep = (
+        usable = (
             found
             & (jnp.sum(inliers) >= 3)
             & (res.status != Status.NOT_FINITE)
             & (res.status != Status.BEHIND_CAMERA)
-            & ((new_num >= num) | (new_score <= score))
         )
-        pose = jax.tree.map(lambda a, b: jnp.where(keep, a, b), res.pose, pose)
+        return res.pose, usable
+
+    for _ in range(options.rounds if options.refine != "none" else 0):
+        new_pose, usable = refit(pose, inliers)
+        new_inliers, new_num, new_score = _score(obs, new_pose, thr)
+        keep = usable & ((new_num >= num) | (new_score <= score))
+        pose = jax.tree.map(lambda a, b: jnp.where(keep, a, b), new_pose, pose)
         inliers = jnp.where(keep, new_inliers, inliers)
         num = jnp.where(keep, new_num, num)
+        score = jnp.where(keep, new_score, score)
+        refined = refined | keep
+
+    if options.refine != "none":  # step 4: the answer is the refit on its inliers
+        new_pose, keep = refit(pose, inliers)
+        pose = jax.tree.map(lambda a, b: jnp.where(keep, a, b), new_pose, pose)
+        _, _, new_score = _score(obs, pose, thr)
         score = jnp.where(keep, new_score, score)
         refined = refined | keep
 

@@ -40,17 +40,18 @@ __all__ = [
 
 
 @cache
-def triplet_indices(n: int, max_triplets: int | None = None) -> np.ndarray:
+def triplet_indices(n: int, max_triplets: int | None = None, seed: int = 0) -> np.ndarray:
     """Index triplets `i < j < k`, shape `(T, 3)` (static: numpy).
 
     All `C(n, 3)` of them when that is at most `max_triplets` (or `max_triplets` is
     `None`); otherwise a fixed, seeded uniform sample of `max_triplets` distinct triplets
-    (the same for every call with the same `n`), so that the work stays bounded as `n`
-    grows: the exhaustive set grows as `n^3 / 6`."""
+    (the same for every call with the same `n` and `seed`), so that the work stays
+    bounded as `n` grows: the exhaustive set grows as `n^3 / 6`. `seed` picks the
+    sample (it changes nothing when every triplet is used)."""
     total = n * (n - 1) * (n - 2) // 6
     if max_triplets is None or total <= max_triplets:
         return np.array(list(itertools.combinations(range(n), 3)), dtype=np.int32).reshape(-1, 3)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     chosen: set[tuple[int, ...]] = set()
     while len(chosen) < max_triplets:
         draw = np.sort(rng.integers(0, n, size=(2 * max_triplets, 3)), axis=1)

@@ -207,7 +207,7 @@ def test_solve_pnp_ransac_option_validation(kwargs, name):
     [
         ((np.zeros((8, 2)), np.zeros((8, 2)), np.eye(3)), "object_points"),
         ((np.zeros((8, 3)), np.zeros((7, 2)), np.eye(3)), "image_points"),
-        ((np.zeros((2, 3)), np.zeros((2, 2)), np.eye(3)), "object_points"),
+        ((np.zeros((8, 3)), np.zeros((8, 3)), np.eye(3)), "image_points"),
         ((np.zeros((8, 3)), np.zeros((8, 2)), np.zeros((3, 3))), "camera_matrix"),
     ],
 )
