@@ -42,6 +42,10 @@ from ._recognition import verify as verify
 from ._recognition import verify_hypotheses as verify_hypotheses
 from ._recognize import Recognition as Recognition
 from ._recognize import recognize as recognize
+from ._render import noise_texture as noise_texture
+from ._render import render as render
+from ._render import render_sequence as render_sequence
+from ._render import smooth_trajectory as smooth_trajectory
 from ._robot import JOINT_NAMES as JOINT_NAMES
 from ._robot import JointCommand as JointCommand
 from ._robot import Robot as Robot
