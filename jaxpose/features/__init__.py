@@ -11,6 +11,8 @@ from ._keypoints import Matches as Matches
 from ._keypoints import TexturedModel as TexturedModel
 from ._keypoints import match_keypoints as match_keypoints
 from ._keypoints import read_textured_model as read_textured_model
+from ._moving_edges import EdgeMatches as EdgeMatches
+from ._moving_edges import moving_edges as moving_edges
 from ._segments import Segments as Segments
 from ._segments import chain_segments as chain_segments
 from ._segments import detect_segments as detect_segments

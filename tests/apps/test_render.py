@@ -54,7 +54,7 @@ def test_edges_land_within_a_fraction_of_a_pixel(x0):
             SQUARE, K, None, np.eye(3), t, SIZE, shades=[255.0], background=0, supersample=s
         )
         covered = image[140].astype(float).sum() / 255
-        assert abs(covered - 200.0) <= 1.0 / s + 0.02  # edges grow by at most 1/(2s) px
+        assert abs(covered - 200.0) <= 1.0 / s + 0.02  # each edge within 1/(2s) px
         left = np.flatnonzero(image[140] > 0)[0]
         assert abs(left - x0) < 1.0
 

@@ -1,0 +1,198 @@
+r"""Moving edges: where the projected edges of a model went in a new image (the idea of
+ViSP's moving-edge tracker, written here from its published description).
+
+A sample point `p` of a projected model edge, with the edge's unit normal `n` in the
+image, looks for the edge along that normal within `search` pixels on either side. The
+grey level is read (bilinearly) at `p + (j \pm 1/2) n + \tau u` for `j = -k..k`, `u` the
+edge's direction and `\tau` a few pixels along it (averaging along the edge smooths the
+noise without blurring across it); the derivative across the edge at offset `j` is
+
+$$ d_j = \bar I(j + 1/2) - \bar I(j - 1/2), $$
+
+the image gradient's component along the expected normal: an edge of another
+orientation gives a weak response. The match is the offset with the largest `|d_j|` (or
+the largest `d_j` of the expected sign when the edge's contrast is known from the
+previous frame), refined to sub-pixel by the parabola through the logarithms of it and
+its neighbours (exact for a Gaussian-blurred edge; measured on rendered edges, it is
+three times as accurate as a plain parabola for sharp edges). A match
+is kept when its derivative reaches `threshold`, it is not at the end of the search
+range (where the edge may lie beyond it), and the whole search line lies in the image.
+
+Each kept match gives a 2D line measurement: the sample `p`, the normal `n`, and the
+matched image point `p + d n`; the pose is moved so that the projected edge passes
+through it (a point-to-line distance, as the paper's linear method uses lines through
+image points, Section 3).
+
+Plain numpy and OpenCV (one `cv2.remap` reads every sample's search line at once).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..geometry._validate import no_type_check
+
+#: The least derivative the sub-pixel fit takes the logarithm of (grey levels per pixel).
+_TINY = 1e-3
+
+__all__ = ["EdgeMatches", "moving_edges"]
+
+
+class EdgeMatches(NamedTuple):
+    """Where the sample points of projected edges found an image edge.
+
+    **Fields:**
+    - `points`: `(S, 2)` the sample points (as given).
+    - `normals`: `(S, 2)` their unit normals (as given, normalised).
+    - `matched`: `(S, 2)` the image edge points found, `points + offset * normals`
+      (the sample point itself where not `valid`).
+    - `offset`: `(S,)` signed distance from the sample to its match along the normal,
+      pixels (0 where not `valid`).
+    - `strength`: `(S,)` the derivative across the edge at the match, grey levels per
+      pixel, signed: positive when the image gets brighter along the normal (0 where not
+      `valid`). Pass it as `contrast` on the next frame.
+    - `valid`: `(S,)` bool.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    matched: np.ndarray
+    offset: np.ndarray
+    strength: np.ndarray
+    valid: np.ndarray
+
+
+def _grey(image) -> np.ndarray:
+    import cv2
+
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"image must be a numpy array, got {type(image).__name__}")
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        image = cv2.cvtColor(image, code)
+    elif image.ndim == 3 and image.shape[2] == 1:
+        image = image[..., 0]
+    if image.ndim != 2 or min(image.shape) < 2:
+        raise ValueError(f"image must be (h, w) or (h, w, 1|3|4) of at least 2 x 2, got "
+                         f"{image.shape}")  # fmt: skip
+    if image.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise ValueError(f"image must be uint8, uint16, float32 or float64, got {image.dtype}")
+    if image.dtype.kind == "f" and not np.all(np.isfinite(image)):
+        raise ValueError("image contains NaN or infinite values")
+    return np.ascontiguousarray(image, dtype=np.float32)
+
+
+def _points(x, name: str, count: int | None) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 2 or (count is not None and len(x) != count):
+        want = "(S, 2)" if count is None else f"({count}, 2)"
+        raise ValueError(f"{name} must have shape {want}, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return x
+
+
+@no_type_check
+def moving_edges(
+    image,
+    points,
+    normals,
+    *,
+    search: int = 8,
+    threshold: float = 10.0,
+    contrast=None,
+    mask=None,
+    along: int = 1,
+) -> EdgeMatches:
+    """Find, along each sample's normal, the image edge of the expected orientation (see
+    the module docstring).
+
+    **Arguments:**
+    - `image`: grey `(h, w)` or BGR `(h, w, 3)`, uint8, uint16 or float.
+    - `points`: `(S, 2)` sample points of the projected model edges (pixels).
+    - `normals`: `(S, 2)` the edges' normals there (normalised here; a zero one makes
+      its sample invalid).
+    - `search`: `k`, the half-length of the search line in pixels (>= 2).
+    - `threshold`: the least `|d|` (grey levels per pixel) a match needs.
+    - `contrast`: `(S,)` the signed `strength` each sample had on the previous frame:
+      only edges of that sign are taken where it is nonzero. None: either sign.
+    - `mask`: `(S,)` bool, the samples to look for (e.g. `EdgeSamples.visible`); None:
+      all.
+    - `along`: pixels either side along the edge averaged (0: the normal line only).
+
+    **Returns:** `EdgeMatches`.
+
+    **Raises:** `ValueError` naming the argument.
+    """
+    import cv2
+
+    grey = _grey(image)
+    points = _points(points, "points", None)
+    normals = _points(normals, "normals", len(points))
+    if isinstance(search, bool) or not isinstance(search, int | np.integer) or search < 2:
+        raise ValueError(f"search must be an int >= 2, got {search!r}")
+    if isinstance(along, bool) or not isinstance(along, int | np.integer) or along < 0:
+        raise ValueError(f"along must be an int >= 0, got {along!r}")
+    if isinstance(threshold, bool) or not isinstance(threshold, int | float) or threshold < 0:
+        raise ValueError(f"threshold must be a number >= 0, got {threshold!r}")
+    count = len(points)
+    sign = np.zeros(count)
+    if contrast is not None:
+        contrast = np.asarray(contrast, dtype=np.float64).reshape(-1)
+        if contrast.shape != (count,) or not np.all(np.isfinite(contrast)):
+            raise ValueError(f"contrast must be {count} finite values")
+        sign = np.sign(contrast)
+    keep = np.ones(count, bool)
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != (count,) or mask.dtype != bool:
+            raise ValueError(f"mask must be a bool array of shape ({count},)")
+        keep &= mask
+    length = np.linalg.norm(normals, axis=1)
+    keep &= length > 1e-12
+    n = normals / np.where(length > 1e-12, length, 1.0)[:, None]
+    u = np.column_stack([n[:, 1], -n[:, 0]])
+    k = int(search)
+    m = np.arange(-k, k + 2, dtype=np.float64) - 0.5  # 2k + 2 half-step positions
+    tau = np.arange(-along, along + 1, dtype=np.float64)
+    coords = (
+        points[:, None, None, :]
+        + m[None, :, None, None] * n[:, None, None, :]
+        + tau[None, None, :, None] * u[:, None, None, :]
+    )  # (S, 2k + 2, T, 2)
+    h, w = grey.shape
+    x, y = coords[..., 0], coords[..., 1]
+    inside = ((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)).all(axis=(1, 2))
+    keep &= inside
+    if count == 0:
+        z = np.zeros(0)
+        return EdgeMatches(points, n, points.copy(), z, z, np.zeros(0, bool))
+    flat = coords.reshape(count, -1, 2).astype(np.float32)
+    values = np.concatenate([  # (OpenCV maps have fewer than 32767 rows)
+        cv2.remap(grey, part[..., 0], part[..., 1], cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE)
+        for part in np.array_split(flat, -(-count // 32000))
+    ])  # fmt: skip
+    profile = values.reshape(count, len(m), len(tau)).mean(axis=2, dtype=np.float64)
+    d = np.diff(profile, axis=1)  # (S, 2k + 1) at offsets -k..k
+    score = np.where(sign[:, None] == 0, np.abs(d), d * sign[:, None])
+    best = np.argmax(score, axis=1)
+    rows = np.arange(count)
+    interior = (best > 0) & (best < 2 * k)
+    # Sub-pixel: the parabola through the logarithms of the derivatives of the peak's
+    # sign (exact for a Gaussian-blurred edge; the same with or without `contrast`), an
+    # opposite or zero neighbour counted as a tiny one.
+    polarity = np.sign(d[rows, best])
+    near = np.stack([best - 1, best, best + 1], axis=1).clip(0, 2 * k)
+    logs = np.log(np.maximum(d[rows[:, None], near] * polarity[:, None], _TINY))
+    curve = logs[:, 0] - 2 * logs[:, 1] + logs[:, 2]
+    fit = interior & (curve < -1e-12)
+    delta = 0.5 * (logs[:, 0] - logs[:, 2]) / np.where(fit, curve, -1.0)
+    delta = np.where(fit, np.clip(delta, -0.5, 0.5), 0.0)
+    valid = keep & interior & (score[rows, best] >= threshold)
+    offset = np.where(valid, best - k + delta, 0.0)
+    strength = np.where(valid, d[rows, best], 0.0)
+    matched = points + offset[:, None] * n
+    return EdgeMatches(points, n, matched, offset, strength, valid)
