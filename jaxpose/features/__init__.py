@@ -11,6 +11,9 @@ from ._keypoints import Matches as Matches
 from ._keypoints import TexturedModel as TexturedModel
 from ._keypoints import match_keypoints as match_keypoints
 from ._keypoints import read_textured_model as read_textured_model
+from ._klt import Tracks as Tracks
+from ._klt import detect_corners as detect_corners
+from ._klt import track_points as track_points
 from ._moving_edges import EdgeMatches as EdgeMatches
 from ._moving_edges import moving_edges as moving_edges
 from ._segments import Segments as Segments
