@@ -42,7 +42,7 @@ def cmd_reproduce(args) -> int:
     c = result.counts
     pc = _experiment.PAPER_COUNTS
     console.print(
-        f"triplets {c['triplets']} (paper {pc['triplets']}); aligned, area < 40 px^2: "
+        f"triplets {c['triplets']} (paper {pc['triplets']}); aligned (area < 40 px^2 here): "
         f"{c['aligned']} (paper {pc['aligned']}); collinear model points: "
         f"{c['collinear_model']}; no three-point solution: {c['no_solution']}; "
         f"used {c['used']} (paper {pc['used']})"

@@ -20,6 +20,7 @@ from ..geometry._numerics import safe_div, safe_sqrt
 from ..geometry._rotation import _sinc_of_sq
 
 __all__ = [
+    "image_spread",
     "Mat3",
     "Vec3",
     "add",
@@ -308,12 +309,29 @@ def _or_add(x, y):
     return tuple(u | w if u.dtype == jnp.bool_ else u + w for u, w in zip(x, y, strict=True))
 
 
+def image_spread(u: Array, v: Array, mask: Array) -> Array:
+    """The spread of a problem's image points, an area: `sqrt(det S)`, `S` the 2x2
+    covariance of the used points (`u`, `v`, `mask` of shape `(..., n)`; the result
+    `(...)`). Any affine map of the image (a focal length, a principal point, pixels that
+    are not square, `K^-1` itself) multiplies it and every triangle's area by the same
+    factor: their ratio is the scale-free measure of alignment of the degeneracy test
+    (`Options.min_area`). Zero when the used points are aligned (or fewer than 3)."""
+    w = mask.astype(u.dtype)
+    count = jnp.maximum(jnp.sum(w, axis=-1), 1)
+    du = jnp.where(mask, u, 0) - (jnp.sum(jnp.where(mask, u, 0), axis=-1) / count)[..., None]
+    dv = jnp.where(mask, v, 0) - (jnp.sum(jnp.where(mask, v, 0), axis=-1) / count)[..., None]
+    suu, svv, suv = (jnp.sum(w * a * b, axis=-1) / count for a, b in ((du, du), (dv, dv), (du, dv)))
+    return safe_sqrt(jnp.maximum(suu * svv - suv * suv, 0))
+
+
 def degeneracy(
     u: tuple[Array, Array, Array], v: tuple[Array, Array, Array], x, min_area, collinear_tol
 ):
     """The three-point method's degeneracy tests (`three_point`; the paper's Section 2.1)
     in component form: `u`, `v` the three pixels' coordinates, `x` the three model
-    points. Returns `(degenerate_image, degenerate_model)`."""
+    points, `min_area` an area in the image's units (the pipeline passes
+    `Options.min_area` times the problem's `image_spread`). Returns
+    `(degenerate_image, degenerate_model)`."""
     area = 0.5 * jnp.abs((u[1] - u[0]) * (v[2] - v[0]) - (v[1] - v[0]) * (u[2] - u[0]))
     e12, e13, e23 = sub(x[0], x[1]), sub(x[0], x[2]), sub(x[1], x[2])
     longest = jnp.maximum(jnp.maximum(norm_sq(e12), norm_sq(e13)), norm_sq(e23))

@@ -35,6 +35,7 @@ from ._pipeline import solve_problems as solve_problems
 from ._robust import RobustResult as RobustResult
 from ._robust import robust as robust
 from ._triplets import Initial as Initial
+from ._triplets import area_threshold as area_threshold
 from ._triplets import best_triplet as best_triplet
 from ._triplets import initial_poses as initial_poses
 from ._triplets import spread_triplets as spread_triplets

@@ -77,6 +77,7 @@ from ._mixed import job, mixed_from_initial_batch
 from ._options import Options
 from ._planar import planar_partner
 from ._triplets import (
+    area_threshold,
     best_triplet,
     initial_poses,
     select_triplets,
@@ -196,7 +197,8 @@ def _roots(obs: Observations, m: Matches, triplets: Int[Array, "B T 3"], options
     bearings = (Vec3(fx[0], fy[0], fz[0]), Vec3(fx[1], fy[1], fz[1]), Vec3(fx[2], fy[2], fz[2]))
     points = (Vec3(mx[0], my[0], mz[0]), Vec3(mx[1], my[1], mz[1]), Vec3(mx[2], my[2], mz[2]))
     c = p3p_components(bearings, points)
-    bad_image, bad_model = degeneracy(u, v, points, options.min_area, options.collinear_tol)
+    area = area_threshold(obs, options)[:, None]  # (B, 1): once per problem
+    bad_image, bad_model = degeneracy(u, v, points, area, options.collinear_tol)
     ok = used[0] & used[1] & used[2] & ~bad_image & ~bad_model
     valid = (c.real | c.near) & c.positive & ok[..., None]
     t = Vec3(*(a - o[:, None, None] for a, o in zip(c.t, centre, strict=True)))

@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ..geometry._pose import Observations, Pose
-from ..solvers._components import mat_from_array, vec_from_array
+from ..solvers._components import image_spread, mat_from_array, vec_from_array
 from ..solvers._kernel_linear import (
     Matches,
     in_chunks,
@@ -29,6 +29,7 @@ from ._options import Options, resolve
 
 __all__ = [
     "Initial",
+    "area_threshold",
     "best_triplet",
     "initial_poses",
     "pose_errors",
@@ -123,15 +124,25 @@ def pose_errors(poses: Pose, obs: Observations) -> Float[Array, " k"]:
     return jax.vmap(lambda R, t: pose_error(Pose(R, t), obs))(poses.R, poses.t)
 
 
+def area_threshold(obs: Observations, options) -> Float[Array, "*B"]:
+    """The image-triangle area below which a triplet of `obs` counts as aligned (the
+    paper's Section 2.1), in the image's units: `options.min_area` (scale-free) times
+    the spread of the problem's used image points (`image_spread`, `sqrt(det S)`), once
+    per problem (`obs` one problem or a batch). See `Options.min_area`."""
+    spread = image_spread(obs.image[..., 0], obs.image[..., 1], obs.mask)
+    return options.min_area * spread
+
+
 def triplet_roots(obs: Observations, ijk: Int[Array, " 3"], options) -> ThreePointResult:
     """Step 1 on the matches `ijk`: up to four poses, near-real roots included (a double
     root that noise made complex is a useful start), with the degeneracy tests of
-    `options` (`min_area`, `collinear_tol`). Masked matches are not tested here."""
+    `options` (`min_area`, relative to the problem's spread: `area_threshold`, and
+    `collinear_tol`). Masked matches are not tested here."""
     return three_point(
         obs.camera,
         obs.model[ijk],
         obs.image[ijk],
-        min_area=options.min_area,
+        min_area=area_threshold(obs, options),
         collinear_tol=options.collinear_tol,
         approximate=True,
     )
@@ -149,17 +160,18 @@ def _stable_ranks(err: Float[Array, "T 4"]) -> list[Array]:
     return ranks
 
 
-def _step1(obs: Observations, matches: Matches, idx: Int[Array, "T 3"], options: Options):
+def _step1(obs: Observations, matches: Matches, idx: Int[Array, "T 3"], options: Options, area):
     """Step 1 for the triplets `idx` of one problem, batch-first: the three-point kernel
-    on every triplet, every root scored by the Eq. 8 kernel, the roots ranked by error.
-    Returns the fields of `Initial` but `triplets`."""
+    on every triplet (`area`: the problem's `area_threshold`), every root scored by the
+    Eq. 8 kernel, the roots ranked by error. Returns the fields of `Initial` but
+    `triplets`."""
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     sol = three_point_batch(
         obs.camera,
         obs.model[idx],
         obs.image[idx],
-        min_area=options.min_area,
+        min_area=area,
         collinear_tol=options.collinear_tol,
         approximate=True,
     )
@@ -217,8 +229,9 @@ def initial_poses(
     matches = matches_from_observations(jax.tree.map(lambda x: x[None], obs))
     T = idx.shape[0]
     size = max(1, -(-T // -(-T // STEP1_PASS))) if T else 1  # near-equal passes
+    area = area_threshold(obs, options)  # once per problem
     pose, error, status, alt, alt_error = in_chunks(
-        lambda block: _step1(obs, matches, block, options), idx, size=size
+        lambda block: _step1(obs, matches, block, options, area), idx, size=size
     )
     return Initial(pose, error, status, idx, alt, alt_error)
 

@@ -18,7 +18,7 @@ from jaxpose.strategy._options import resolve
 def test_defaults():
     o = jp.Options()
     assert o.method == "mixed" and o.threshold is None and o.rel_threshold == 0.01
-    assert (o.min_area, o.collinear_tol) == (40.0, 5e-3)
+    assert (o.min_area, o.collinear_tol) == (0.0138, 5e-3)
     assert (o.linear_iterations, o.nonlinear_budget, o.max_steps) == (5, 32, 50)
     assert (o.second_chance_budget, o.planar_partner) == (8, True)
     assert (o.max_triplets, o.triplet_budget, o.chunk) == (2000, None, None)
