@@ -220,6 +220,18 @@ def front_faces(model: Polyhedron | MeshGeometry, R, t) -> np.ndarray:
     return geo.normals @ _camera_in_model(R, t) > geo.offsets
 
 
+def facing(geo: MeshGeometry, R: np.ndarray, t: np.ndarray, grazing: float = 90.0):
+    """`(F,)` bool: the faces whose outward normal is within `grazing` degrees of the
+    line of sight to the camera centre (seen from the face's centroid); with 90, the
+    faces turned towards the camera."""
+    centre = _camera_in_model(R, t)
+    if grazing >= 90:
+        return geo.normals @ centre > geo.offsets
+    sight = centre - geo.corners.mean(axis=1)
+    cos = (geo.normals * sight).sum(axis=1) / np.maximum(np.linalg.norm(sight, axis=1), 1e-300)
+    return cos > np.cos(np.radians(grazing))
+
+
 def _crossings(geo: MeshGeometry, origin: np.ndarray, directions: np.ndarray, faces=None):
     """Ray parameters `(N, F)` where rays `origin + s d` (model frame) cross each face
     inside its polygon, `inf` where they do not (or run parallel to it)."""
@@ -289,6 +301,7 @@ def edge_samples(
     image_size: tuple[int, int] | None = None,
     margin: float = 0.0,
     crease_angle: float = 10.0,
+    grazing: float = 90.0,
     occlusion: bool = True,
 ) -> EdgeSamples:
     """Sample points along the edges a camera sees of a model at pose `(R, t)`, for
@@ -307,6 +320,10 @@ def edge_samples(
       on each side) are marked not visible; None: no such test.
     - `crease_angle`: degrees between the normals of two faces below which their common
       edge is not drawn (a smooth surface's triangulation).
+    - `grazing`: degrees between a face's normal and its line of sight beyond which
+      the face counts as turned away (90: plain back-face culling; less, e.g. 80: a
+      face seen edge-on, whose edges crowd into a pixel or two, is left out and its
+      neighbour's edge along it becomes an outline).
     - `occlusion`: run the depth test (False: back-face culling only, enough for a
       convex model).
 
@@ -325,7 +342,9 @@ def edge_samples(
         raise ValueError(f"image_size must be (width, height) >= 1, got {image_size!r}")
     vertices = np.asarray(geo.model.vertices, dtype=np.float64)
     edges = np.asarray(geo.model.edges, dtype=np.int64).reshape(-1, 2)
-    front = geo.normals @ _camera_in_model(R, t) > geo.offsets
+    if isinstance(grazing, bool) or not isinstance(grazing, int | float) or not 0 < grazing <= 90:
+        raise ValueError(f"grazing must be a number in (0, 90], got {grazing!r}")
+    front = facing(geo, R, t, grazing)
     chosen = np.flatnonzero(_candidate_edges(geo, front, crease_angle))
     a, b = vertices[edges[chosen, 0]], vertices[edges[chosen, 1]]
     ca, cb = a @ R.T + t, b @ R.T + t

@@ -105,6 +105,7 @@ def moving_edges(
     contrast=None,
     mask=None,
     along: int = 1,
+    choose: str = "strongest",
 ) -> EdgeMatches:
     """Find, along each sample's normal, the image edge of the expected orientation (see
     the module docstring).
@@ -121,6 +122,10 @@ def moving_edges(
     - `mask`: `(S,)` bool, the samples to look for (e.g. `EdgeSamples.visible`); None:
       all.
     - `along`: pixels either side along the edge averaged (0: the normal line only).
+    - `choose`: `"strongest"`: the offset of the largest derivative; `"nearest"`: the
+      local maximum nearest the sample among those reaching `threshold` (right when
+      the prediction is good and another edge lies within the range, e.g. the far
+      side of a face seen nearly edge-on).
 
     **Returns:** `EdgeMatches`.
 
@@ -137,6 +142,8 @@ def moving_edges(
         raise ValueError(f"along must be an int >= 0, got {along!r}")
     if isinstance(threshold, bool) or not isinstance(threshold, int | float) or threshold < 0:
         raise ValueError(f"threshold must be a number >= 0, got {threshold!r}")
+    if choose not in ("strongest", "nearest"):
+        raise ValueError(f"choose must be 'strongest' or 'nearest', got {choose!r}")
     count = len(points)
     sign = np.zeros(count)
     if contrast is not None:
@@ -178,7 +185,13 @@ def moving_edges(
     profile = values.reshape(count, len(m), len(tau)).mean(axis=2, dtype=np.float64)
     d = np.diff(profile, axis=1)  # (S, 2k + 1) at offsets -k..k
     score = np.where(sign[:, None] == 0, np.abs(d), d * sign[:, None])
-    best = np.argmax(score, axis=1)
+    if choose == "nearest":
+        padded = np.pad(score, ((0, 0), (1, 1)), constant_values=-np.inf)
+        peaks = (score >= padded[:, :-2]) & (score > padded[:, 2:]) & (score >= threshold)
+        distance = np.where(peaks, np.abs(np.arange(2 * k + 1) - k), 4 * k)
+        best = np.where(peaks.any(axis=1), np.argmin(distance, axis=1), np.argmax(score, 1))
+    else:
+        best = np.argmax(score, axis=1)
     rows = np.arange(count)
     interior = (best > 0) & (best < 2 * k)
     # Sub-pixel: the parabola through the logarithms of the derivatives of the peak's

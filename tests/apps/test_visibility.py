@@ -66,6 +66,13 @@ def test_front_faces_and_box_edges():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     np.testing.assert_allclose(samples.tangents, d, atol=1e-6)
     np.testing.assert_allclose((samples.normals * samples.tangents).sum(1), 0, atol=1e-12)
+    # A face seen nearly edge-on gives no edges of its own with a grazing limit.
+    normals = (R @ np.array([n for n in mesh_geometry(BOX).normals]).T).T
+    sight = -(mesh_geometry(BOX).corners.mean(axis=1) @ R.T + t)
+    angle = np.degrees(np.arccos((normals * sight).sum(1) / np.linalg.norm(sight, axis=1)))
+    limit = float(np.sort(angle)[2]) - 1.0  # the third face seen is left out
+    fewer = edge_samples(BOX, K, None, R, t, spacing=5.0, image_size=SIZE, grazing=limit)
+    assert len(set(fewer.edge[fewer.visible].tolist())) == 7  # two faces: seven edges
     gaps = np.linalg.norm(np.diff(samples.pixels, axis=0), axis=1)
     same = np.diff(samples.edge) == 0
     assert np.all(np.abs(gaps[same] - 5.0) < 5.0)

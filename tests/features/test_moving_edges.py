@@ -102,6 +102,12 @@ def test_contrast_picks_the_edge_of_the_expected_sign():
     falling = moving_edges(image, points, normals, search=6, contrast=[-1.0, -5.0])
     np.testing.assert_allclose(falling.matched[:, 0], 35.5)
     np.testing.assert_allclose(falling.strength, -40.0)  # a sharp step read bilinearly
+    # The nearest edge rather than the strongest: from x = 34, the falling one.
+    closer = points + [1.0, 0.0]
+    strongest = moving_edges(image, closer, normals, search=6)
+    np.testing.assert_allclose(strongest.matched[:, 0], 29.5)
+    nearest = moving_edges(image, closer, normals, search=6, choose="nearest")
+    np.testing.assert_allclose(nearest.matched[:, 0], 35.5)
     # An edge along the normal gives no response; a search line leaving the image, none.
     along = moving_edges(image, points, [[0.0, 1.0], [0.0, 1.0]], search=6)
     assert not along.valid.any()
@@ -141,5 +147,7 @@ def test_bad_arguments():
         moving_edges(image, p, n, contrast=[1.0])
     with pytest.raises(ValueError, match="mask"):
         moving_edges(image, p, n, mask=[1, 0, 1])
+    with pytest.raises(ValueError, match="choose"):
+        moving_edges(image, p, n, choose="best")
     empty = moving_edges(image, np.zeros((0, 2)), np.zeros((0, 2)))
     assert empty.matched.shape == (0, 2) and empty.valid.shape == (0,)
