@@ -100,7 +100,7 @@ def run(frames: int = 100, spacing: float = 8.0, search: int = 10, corners: int 
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--out", default="benchmarks/results/frontend.json")
     args = parser.parse_args(argv)

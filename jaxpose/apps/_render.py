@@ -173,6 +173,7 @@ def render(
     s = supersample
     shade = _shades(geo, R, shades, light, ambient)
     faces = len(geo.normals)
+    textures: list[np.ndarray] = []
     if texture is not None:
         textures = [texture] * faces if isinstance(texture, np.ndarray) else list(texture)
         if len(textures) != faces or any(
@@ -184,7 +185,9 @@ def render(
     if isinstance(background, np.ndarray):
         if background.shape != (h, w) or background.dtype != np.uint8:
             raise ValueError(f"background must be a grey level or a ({h}, {w}) uint8 image")
-        canvas = cv2.resize(background.astype(np.float32), (w * s, h * s), cv2.INTER_LINEAR)
+        canvas = cv2.resize(
+            background.astype(np.float32), (w * s, h * s), interpolation=cv2.INTER_LINEAR
+        )
     else:
         canvas = np.full((h * s, w * s), float(background), np.float32)
     A = np.array([[s, 0, (s - 1) / 2], [0, s, (s - 1) / 2], [0, 0, 1.0]])

@@ -109,7 +109,7 @@ class TrackedFrame(NamedTuple):
     """One frame's result.
 
     **Fields:**
-    - `index`: the frame's number (from 0).
+    - `frame`: the frame's number (from 0).
     - `R`, `t`: the pose, model to camera (`x = R m + t`).
     - `ok`: whether the pose was measured (enough edges and points took part; where
       False, the pose is the previous one).
@@ -118,7 +118,7 @@ class TrackedFrame(NamedTuple):
     - `rms`: the weighted RMS pixel residual of those.
     """
 
-    index: int
+    frame: int
     R: np.ndarray
     t: np.ndarray
     ok: bool
@@ -184,6 +184,7 @@ def _rows(R, t, K, meas: _Measurements):
             continue
         z = np.maximum(X[:, 2], 1e-12)
         if obs is None:
+            assert planes is not None
             normals = planes[:, None, :]  # (E, 1, 3)
             residual = (normals[:, 0] * X).sum(axis=1) / z  # l . (u^, v^, 1)
             residual = residual[:, None]

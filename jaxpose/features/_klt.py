@@ -172,14 +172,15 @@ def track_points(
     count = len(points)
     if count == 0:
         return Tracks(np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0))
-    options = dict(
-        winSize=(window, window),
-        maxLevel=levels,
-        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, 0.01),
-    )
+    size = (window, window)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, 0.01)
     start = points.astype(np.float32).reshape(-1, 1, 2)
-    ahead, ok_f, _ = cv2.calcOpticalFlowPyrLK(prev, curr, start, None, **options)
-    back, ok_b, _ = cv2.calcOpticalFlowPyrLK(curr, prev, ahead, None, **options)
+    ahead, ok_f, _ = cv2.calcOpticalFlowPyrLK(
+        prev, curr, start, start.copy(), winSize=size, maxLevel=levels, criteria=criteria
+    )
+    back, ok_b, _ = cv2.calcOpticalFlowPyrLK(
+        curr, prev, ahead, ahead.copy(), winSize=size, maxLevel=levels, criteria=criteria
+    )
     ahead = ahead.reshape(-1, 2).astype(np.float64)
     back = back.reshape(-1, 2).astype(np.float64)
     found = (ok_f.reshape(-1) == 1) & (ok_b.reshape(-1) == 1)

@@ -77,9 +77,10 @@ def _grey(image) -> np.ndarray:
     if image.ndim != 2 or min(image.shape) < 2:
         raise ValueError(f"image must be (h, w) or (h, w, 1|3|4) of at least 2 x 2, got "
                          f"{image.shape}")  # fmt: skip
-    if image.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
-        raise ValueError(f"image must be uint8, uint16, float32 or float64, got {image.dtype}")
-    if image.dtype.kind == "f" and not np.all(np.isfinite(image)):
+    dtype = np.dtype(image.dtype)
+    if dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise ValueError(f"image must be uint8, uint16, float32 or float64, got {dtype}")
+    if dtype.kind == "f" and not np.all(np.isfinite(image)):
         raise ValueError("image contains NaN or infinite values")
     return np.ascontiguousarray(image, dtype=np.float32)
 

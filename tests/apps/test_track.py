@@ -74,7 +74,7 @@ def test_tracks_a_rendered_box(look, use_points):
     results = list(
         track(frames, GEO, K, None, (Rs[0], ts[0]), options=TrackOptions(use_points=use_points))
     )
-    assert [r.index for r in results] == list(range(40))
+    assert [r.frame for r in results] == list(range(40))
     assert all(r.ok for r in results)
     assert min(r.edges for r in results) > 50
     if use_points:
