@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from ..geometry import (
     COEFFICIENTS,
+    Pose,
     as_dist_coeffs,
     as_intrinsics,
     as_matching,
@@ -32,6 +33,7 @@ from ..geometry import (
     matrix_to_rotvec,
     no_type_check,
     refine_in_image,
+    rotvec_to_matrix,
     undistort_pixels,
 )
 from ..solvers import Status
@@ -79,6 +81,34 @@ def _solve_opencv(packed, options: Options):
     sol = solve(camera_matrix(K), obj, img, mask, options=options)
     ok = sol.accepted.astype(packed.dtype)[None]
     return jnp.concatenate([ok, matrix_to_rotvec(sol.pose.R), sol.pose.t])
+
+
+def _solve_opencv_from(packed, options: Options):
+    """`_solve_opencv` from a given pose (the program of `solve_pnp` with
+    `use_extrinsic_guess`): `packed` the traced values (4), `rvec`, `tvec` (6), then
+    `_pack`'s vector."""
+    start = Pose(rotvec_to_matrix(packed[4:7]), packed[7:10])
+    options = with_values(options, packed[:4])
+    packed = packed[10:]
+    n = (packed.shape[0] - 9) // 6
+    K = packed[:9].reshape(3, 3)
+    obj = packed[9 : 9 + 3 * n].reshape(n, 3)
+    img = packed[9 + 3 * n : 9 + 5 * n].reshape(n, 2)
+    mask = packed[9 + 5 * n :] > 0.5
+    sol = solve(camera_matrix(K), obj, img, mask, options=options, initial=start)
+    ok = sol.accepted.astype(packed.dtype)[None]
+    return jnp.concatenate([ok, matrix_to_rotvec(sol.pose.R), sol.pose.t])
+
+
+def _guess(x, name: str) -> np.ndarray:
+    """A `rvec` or `tvec` of `solve_pnp`: 3 finite reals, any of OpenCV's shapes."""
+    arr = _read_array(x, name)
+    if arr.size != 3 or not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
+        raise ValueError(f"{name} must hold 3 real numbers (shape (3, 1) or (3,)), got {arr.shape}")
+    arr = arr.astype(np.float64).reshape(3)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr}")
+    return arr
 
 
 #: Levenberg-Marquardt steps of the image-space refinement with `dist_coeffs`.
@@ -210,6 +240,9 @@ def solve_pnp(
     image_points: npt.ArrayLike,
     camera_matrix: npt.ArrayLike,
     dist_coeffs: npt.ArrayLike | None = None,
+    rvec: npt.ArrayLike | None = None,
+    tvec: npt.ArrayLike | None = None,
+    use_extrinsic_guess: bool = False,
     *,
     options: Options | None = None,
     **changes: Any,
@@ -229,11 +262,25 @@ def solve_pnp(
     `"three_point"`, `"linear"`, `"nonlinear"`) or `triplet_budget=8` (see
     `jaxpose.solve`).
 
+    `rvec`, `tvec`, `use_extrinsic_guess`: OpenCV's, in its order. With
+    `use_extrinsic_guess=True` the answer starts from the pose `(rvec, tvec)` (both
+    required, 3 values each) instead of the three-point roots: the paper's
+    small-movement linear method (Section 2.2) from it, Levenberg-Marquardt where that
+    does not reach an accepted pose, then the usual acceptance and finish
+    (`jaxpose.solve`'s `initial`): the local optimum near the guess, as OpenCV's
+    iterative method gives. One stored program serves every guess. Without it, `rvec`
+    and `tvec` are ignored (as OpenCV ignores them); the result is always new arrays.
+
     **Returns:** `(ok, rvec, tvec)` with `rvec`, `tvec` of shape `(3, 1)`: `x_cam =
     Rodrigues(rvec) X + tvec`. `ok` is False (with finite placeholders) when no pose is
     accepted.
     """
     options = resolve(options, changes)
+    if not isinstance(use_extrinsic_guess, bool | np.bool_):
+        raise ValueError(f"use_extrinsic_guess must be a bool, got {use_extrinsic_guess!r}")
+    guess = np.zeros(6)
+    if use_extrinsic_guess:
+        guess = np.concatenate([_guess(rvec, "rvec"), _guess(tvec, "tvec")])
     K, dist, obj, raw, img = _prepare(
         object_points, image_points, camera_matrix, dist_coeffs, False
     )
@@ -246,7 +293,13 @@ def solve_pnp(
         # (numpy in: one transfer each way, no conversion program to compile on a first
         # call, and no separate `device_put` call)
         packed = np.concatenate([_values(options), _pack(K, obj, img, mask)])
-        out = np.array(program(_solve_opencv, rungs[0])(packed))
+        if use_extrinsic_guess:
+            packed = np.concatenate([packed[:4], guess, packed[4:]])
+            key = split_values(dataclasses.replace(options, derivative=False))[0]
+            out = np.array(program(_solve_opencv_from, key)(packed))
+            rungs = rungs[:1]
+        else:
+            out = np.array(program(_solve_opencv, rungs[0])(packed))
         for k, rung in enumerate(rungs[1:], start=2):
             if out[0]:
                 break

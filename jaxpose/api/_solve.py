@@ -5,6 +5,7 @@ devices). The OpenCV-convention ones are in `jaxpose.api._pnp`."""
 from __future__ import annotations
 
 import functools
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -12,7 +13,7 @@ import numpy as np
 from jax.core import Tracer
 from jaxtyping import ArrayLike, Bool, Real
 
-from ..geometry import as_batched, check_problem, no_type_check
+from ..geometry import Pose, as_batched, check_problem, no_type_check
 from ..strategy import METHODS as METHODS
 from ..strategy import (
     TRACED,
@@ -40,6 +41,7 @@ def solve(
     mask: Bool[ArrayLike, " n"] | None = None,
     *,
     options: Options | None = None,
+    initial: Pose | None = None,
     **changes,
 ) -> Solution:
     """Recover the pose of a known object from one calibrated image (JAX-native).
@@ -66,6 +68,13 @@ def solve(
       threshold, the triplets used (`max_triplets`, `triplet_budget`: the fast path for
       large batches of easy problems), the mixed algorithm's budgets. A static argument
       under `jax.jit` (hashable).
+    - `initial`: `None`, or a `Pose` `(R (3, 3), t (3,))` (model to world) to start
+      from instead of the three-point roots: the paper's small-movement linear method
+      (Section 2.2) from it, then, with the mixed method, Levenberg-Marquardt where it
+      does not reach an accepted pose, and the usual acceptance and finish (the local
+      answer near it: no other roots or planar partner are tried;
+      `jaxpose.strategy._start`). Its `triplet` is then `(0, 1, 2)`. A value, not
+      structure: another initial pose compiles nothing.
     - `**changes`: keyword shorthands for fields of `options`, e.g.
       `solve(C, M, I, method="linear", threshold=2.0)`; an unknown one raises
       `ValueError`.
@@ -83,13 +92,31 @@ def solve(
     """
     options = resolve(options, changes)
     check_problem(camera, model, image, mask)
+    start = _check_initial(initial, ())
 
     def one(x):  # a batch of one (numpy for a plain call: no dispatch)
         if x is None:
             return None
         return x[None] if isinstance(x, Tracer) else np.asarray(x)[None]
 
-    return _pipeline(camera, one(model), one(image), one(mask), options, single=True)
+    start = None if start is None else Pose(*(cast(Any, one(x)) for x in start))
+    return _pipeline(camera, one(model), one(image), one(mask), options, True, start)
+
+
+def _check_initial(initial, batch: tuple[int, ...]) -> Pose | None:
+    """`initial` checked: `None` or a `Pose` of shapes `(*batch, 3, 3)`, `(*batch, 3)`,
+    real and (when concrete) finite; `ValueError` naming `initial` otherwise."""
+    if initial is None:
+        return None
+    if not isinstance(initial, Pose):
+        raise ValueError(f"initial must be a jaxpose.Pose or None, got {type(initial).__name__}")
+    for name, x, tail in (("R", initial.R, (3, 3)), ("t", initial.t, (3,))):
+        shape = tuple(getattr(x, "shape", np.shape(x)))
+        if shape != (*batch, *tail):
+            raise ValueError(f"initial.{name} must have shape {(*batch, *tail)}, got {shape}")
+        if not isinstance(x, Tracer) and not np.all(np.isfinite(np.asarray(x, np.float64))):
+            raise ValueError(f"initial.{name} must be finite")
+    return initial
 
 
 @no_type_check
@@ -100,6 +127,7 @@ def solve_many(
     mask: Bool[ArrayLike, "B n"] | None = None,
     *,
     options: Options | None = None,
+    initial: Pose | None = None,
     **changes,
 ) -> Solution:
     """`solve` for a batch of `B` problems of equal `n`: the same answers as
@@ -112,17 +140,21 @@ def solve_many(
     "only when needed" into "always"); here each rung runs only for the problems that
     need it, gathered a few at a time, the triplets that need Levenberg-Marquardt share
     one buffer, and the cheap steps run in cache-sized passes. Arguments as `solve`
-    (`model`, `image`, `mask` with a leading batch axis); pure, for `jit` and `grad`.
+    (`model`, `image`, `mask` with a leading batch axis, `initial` a `Pose` of `B`
+    poses); pure, for `jit` and `grad`.
     """
     options = resolve(options, changes)
     _check_many(camera, model, image, mask)
-    return _pipeline(camera, model, image, mask, options)
+    start = _check_initial(initial, np.shape(model)[:1])
+    return _pipeline(camera, model, image, mask, options, False, start)
 
 
 # ------------------------------------------------------------------ compiled programs
 
 
-def _pipeline(camera, model, image, mask, options: Options, single: bool = False) -> Solution:
+def _pipeline(
+    camera, model, image, mask, options: Options, single: bool = False, start=None
+) -> Solution:
     """`solve_problems`, compiled. Concrete inputs (a plain call) run a stored program
     (`jaxpose.api._programs`: compiled once per bucket of points and of problems, kept
     on disk, loaded by a new process, built ahead by `jaxpose warmup`); traced ones
@@ -130,22 +162,23 @@ def _pipeline(camera, model, image, mask, options: Options, single: bool = False
     program JAX keeps for the life of the process. Either way a call is as fast from
     its second call as a jitted one. The thresholds and tolerances are the programs'
     values (`jaxpose.strategy.split_values`): changing them compiles nothing.
-    `single`: one problem (`B = 1`), returned without its batch axis."""
-    arrays = (camera, model, image, mask)
+    `single`: one problem (`B = 1`), returned without its batch axis. `start`: the
+    given poses (`Pose`, batched) or `None`: an argument of the programs too."""
+    arrays = (camera, model, image, mask, *(() if start is None else start))
     traced = any(isinstance(x, Tracer) for x in arrays)
     values_traced = any(isinstance(getattr(options, f), Tracer) for f in TRACED)
     if values_traced:  # the options' values are the caller's tracers: trace it all
-        out = solve_problems(camera, model, image, mask, options)
+        out = solve_problems(camera, model, image, mask, options, start)
     else:
         key, values = split_values(options)
         if not traced:
-            return _stored(camera, model, image, mask, key, values, single)
-        out = _jitted(values, camera, model, image, mask, options=key)
+            return _stored(camera, model, image, mask, key, values, single, start)
+        out = _jitted(values, camera, model, image, mask, start, options=key)
     return jax.tree.map(lambda a: a[0], out) if single else out
 
 
-def _with_values(values, camera, model, image, mask, options: Options) -> Solution:
-    return solve_problems(camera, model, image, mask, with_values(options, values))
+def _with_values(values, camera, model, image, mask, start, options: Options) -> Solution:
+    return solve_problems(camera, model, image, mask, with_values(options, values), start)
 
 
 _jitted = jax.jit(_with_values, static_argnames=("options",))
@@ -153,7 +186,13 @@ _jitted = jax.jit(_with_values, static_argnames=("options",))
 
 def _stored_program(values, camera, model, image, mask, options: Options, single: bool):
     """The stored program of `_pipeline` (`single`: the first problem's answer)."""
-    out = _with_values(values, camera, model, image, mask, options)
+    out = _with_values(values, camera, model, image, mask, None, options)
+    return jax.tree.map(lambda x: x[0], out) if single else out
+
+
+def _stored_program_from(values, camera, model, image, mask, R, t, options: Options, single):
+    """The stored program of `_pipeline` from given poses `Pose(R, t)`."""
+    out = _with_values(values, camera, model, image, mask, Pose(R, t), options)
     return jax.tree.map(lambda x: x[0], out) if single else out
 
 
@@ -163,7 +202,9 @@ def bucket_problems(B: int) -> int:
     return B if B <= 4 else 1 << (int(B) - 1).bit_length()
 
 
-def _stored(camera, model, image, mask, options: Options, values, single: bool) -> Solution:
+def _stored(
+    camera, model, image, mask, options: Options, values, single: bool, start=None
+) -> Solution:
     """The pipeline on concrete inputs through its stored program: the points padded to
     their bucket (`bucket_points`, the padding masked out), the problems to theirs
     (`bucket_problems`, repeating the last), and the answers cut back."""
@@ -187,6 +228,10 @@ def _stored(camera, model, image, mask, options: Options, values, single: bool) 
     model, image = model.astype(dtype), image.astype(dtype)
     camera = (problems(camera) if camera.ndim == 3 else camera).astype(dtype)
     args = (values.astype(dtype), camera, model, image, mask)
+    if start is not None:  # one program: the given poses are its arguments
+        R, t = (problems(np.asarray(x)).astype(dtype) for x in start)
+        out = program(_stored_program_from, options, single)(*args, R, t)
+        return out if rows == B else jax.tree.map(lambda x: x[:B], out)
     rungs = escalation(options)
     # The first rung's own program (a third of the whole one: quicker to load and to
     # run); the whole escalation only when it leaves a problem without a pose. Where the

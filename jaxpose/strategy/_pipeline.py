@@ -34,6 +34,7 @@ from ..solvers._status import Status
 from ._best import Answer, answer_batch, finish_linear_batch
 from ._implicit import polish
 from ._options import Options
+from ._start import answer_from_start
 
 __all__ = ["Solution", "finish", "finite_inputs", "not_finite", "solve_problems"]
 
@@ -125,12 +126,14 @@ def finish(
     )
 
 
-def solve_problems(camera, model, image, mask, options: Options) -> Solution:
+def solve_problems(camera, model, image, mask, options: Options, start=None) -> Solution:
     """The pipeline (module docstring) on `B` problems of equal `n`: `camera` `(3, 4)`
     (shared) or `(B, 3, 4)`, `model` `(B, n, 3)`, `image` `(B, n, 2)`, `mask` `(B, n)`
-    bool or `None` (every match). Arguments already checked (`jaxpose.solve_many` checks
-    them); pure, for `jit`, `vmap` and `grad` (the derivative flows through the finish
-    only)."""
+    bool or `None` (every match). `start`: `None`, or a `Pose` of `B` given poses, from
+    which step 2 of the answer runs instead of the three-point roots
+    (`jaxpose.strategy._start.answer_from_start`). Arguments already checked
+    (`jaxpose.solve_many` checks them); pure, for `jit`, `vmap` and `grad` (the
+    derivative flows through the finish only)."""
     shared = None if jnp.ndim(camera) == 2 else 0
     camera, model, image, finite = jax.vmap(finite_inputs, in_axes=(shared, 0, 0))(
         camera, model, image
@@ -141,9 +144,14 @@ def solve_problems(camera, model, image, mask, options: Options) -> Solution:
         mask = jax.lax.optimization_barrier(jnp.ones(model.shape[:2], dtype=bool))
     obs = jax.vmap(observations)(camera, model, image, mask)
     sobs = jax.lax.stop_gradient(obs)
-    found = answer_batch(sobs, options)
-    # values only: an answer from the best roots is finished by two linear steps
-    settled = not options.derivative and options.method == "mixed" and options.refine is not None
+    if start is not None:
+        found = answer_from_start(sobs, jax.lax.stop_gradient(start), options)
+        settled = False
+    else:
+        found = answer_batch(sobs, options)
+        # values only: an answer from the best roots is finished by two linear steps
+        settled = not options.derivative and options.method == "mixed"
+        settled = settled and options.refine is not None
     if settled:
         found = finish_linear_batch(sobs, found)
 
