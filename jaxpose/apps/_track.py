@@ -95,7 +95,7 @@ class TrackOptions:
     min_corners: int = 60
     erode: int = 6
     fb_threshold: float = 1.0
-    iterations: int = 4
+    iterations: int = 3
     min_scale: float = 0.3
     grazing: float = 90.0
     choose: str = "strongest"
@@ -168,38 +168,34 @@ class _Measurements(NamedTuple):
 
 
 def _rows(R, t, K, meas: _Measurements):
-    """Residuals (px) and Jacobian rows (d residual / d(dt, r), rotation about the
-    centroid of the measured points) of every measurement at pose `(R, t)`; the
-    centroid too."""
+    """Residuals `(M,)` (px) and Jacobian rows `(M, 6)` (d residual / d(dt, r), rotation
+    about the centroid of the measured points) at pose `(R, t)`: the `E` edge rows
+    first, then two rows (u, v) per point; and the centroid."""
     Xe = meas.edge_model @ R.T + t
     Xp = meas.point_model @ R.T + t
-    both = np.vstack([Xe, Xp])
-    centre = both.mean(axis=0) if len(both) else np.zeros(3)
-    blocks_r, blocks_j = [], []
-    for X, planes, obs in (
-        (Xe, meas.edge_lines @ K, None),  # rows l^T K: the plane C^T l (its 3 first)
-        (Xp, None, meas.point_pixels),
-    ):
-        if len(X) == 0:
-            continue
-        z = np.maximum(X[:, 2], 1e-12)
-        if obs is None:
-            assert planes is not None
-            normals = planes[:, None, :]  # (E, 1, 3)
-            residual = (normals[:, 0] * X).sum(axis=1) / z  # l . (u^, v^, 1)
-            residual = residual[:, None]
-        else:
-            uv = (X @ K.T)[:, :2] / z[:, None]
-            residual = uv - obs  # (P, 2)
-            normals = K[None, :2, :] - uv[:, :, None] * np.array([0.0, 0.0, 1.0])
-        if obs is None:  # the line's normal at the reprojected pixel: l^T K - f e3
-            normals = normals - residual[:, :, None] * np.array([0.0, 0.0, 1.0])
-        normals = normals / z[:, None, None]
-        lever = X - centre
-        jac = np.concatenate([normals, np.cross(lever[:, None, :], normals)], axis=2)
-        blocks_r.append(residual.reshape(-1))
-        blocks_j.append(jac.reshape(-1, 6))
-    return blocks_r, blocks_j, centre
+    X = np.vstack([Xe, np.repeat(Xp, 2, axis=0)])
+    if len(X) == 0:
+        return np.zeros(0), np.zeros((0, 6)), np.zeros(3)
+    z = np.maximum(X[:, 2], 1e-12)
+    # Edge rows: the plane C^T l = (l^T K, 0), residual l . (u^, v^, 1); its normal at
+    # the reprojected pixel, l^T K - residual e3.
+    ne = meas.edge_lines @ K
+    re = (ne * Xe).sum(axis=1) / z[: len(Xe)]
+    ne[:, 2] -= re
+    # Point rows: the planes of the pixel's visual ray, K_u - u^ e3 and K_v - v^ e3.
+    uv = (Xp @ K[:2].T) / z[len(Xe) :: 2, None]
+    rp = (uv - meas.point_pixels).reshape(-1)
+    npt = np.broadcast_to(K[:2], (len(Xp), 2, 3)).copy()
+    npt[:, :, 2] -= uv
+    n = np.vstack([ne, npt.reshape(-1, 3)]) / z[:, None]
+    centre = np.vstack([Xe, Xp]).mean(axis=0)
+    L = X - centre
+    J = np.empty((len(X), 6))
+    J[:, :3] = n
+    J[:, 3] = L[:, 1] * n[:, 2] - L[:, 2] * n[:, 1]  # (L x n): d residual / d r
+    J[:, 4] = L[:, 2] * n[:, 0] - L[:, 0] * n[:, 2]
+    J[:, 5] = L[:, 0] * n[:, 1] - L[:, 1] * n[:, 0]
+    return np.concatenate([re, rp]), J, centre
 
 
 def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
@@ -209,24 +205,16 @@ def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
     w_e, w_p = np.zeros(n_e), np.zeros(n_p)
     rms, ok = 0.0, False
     for _ in range(options.iterations):
-        residuals, jacobians, centre = _rows(R, t, K, meas)
-        if not residuals:
-            break
-        weights = []
-        if n_e:
-            w_e = _tukey(residuals[0], options.min_scale)
-            weights.append(w_e)
-        if n_p:
-            r_p = residuals[-1].reshape(-1, 2)
-            w_p = _tukey(np.linalg.norm(r_p, axis=1), options.min_scale)
-            weights.append(np.repeat(w_p, 2))
-        w = np.concatenate(weights)
-        r = np.concatenate(residuals)
-        J = np.vstack(jacobians)
+        r, J, centre = _rows(R, t, K, meas)
+        w_e = _tukey(r[:n_e], options.min_scale)
+        r_p = r[n_e:].reshape(-1, 2)
+        w_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), options.min_scale)
+        w = np.concatenate([w_e, np.repeat(w_p, 2)])
         if np.count_nonzero(w) < 6:
             break
-        A = (J * w[:, None]).T @ J
-        b = -(J * w[:, None]).T @ r
+        Jw = J * w[:, None]
+        A = Jw.T @ J
+        b = -(Jw.T @ r)
         scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
         try:
             step = np.linalg.solve(A / np.outer(scale, scale), b / scale) / scale
