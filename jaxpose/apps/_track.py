@@ -72,7 +72,10 @@ class TrackOptions:
       `erode`: pixels kept away from the faces' borders when detecting;
       `fb_threshold`: forward-backward check (px).
     - `iterations`: Gauss-Newton steps per round; `min_scale`: the least robust scale
-      (px) of the residuals (below it, noise-free residuals would reject everything).
+      (px) of the residuals (below it, noise-free residuals would reject everything);
+      `min_rows`: the fewest measurement rows with a nonzero weight a pose needs (an
+      edge match gives one, a point two); with fewer, the frame keeps the previous
+      pose, `ok` False.
     - `grazing`: faces seen at more than this angle (degrees) from their normal give
       no edges (`edge_samples`); an edge whose faces change between seen and not
       forgets its contrast sign.
@@ -97,6 +100,7 @@ class TrackOptions:
     fb_threshold: float = 1.0
     iterations: int = 3
     min_scale: float = 0.3
+    min_rows: int = 12
     grazing: float = 90.0
     choose: str = "strongest"
     predict: str = "velocity"
@@ -210,7 +214,8 @@ def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
         r_p = r[n_e:].reshape(-1, 2)
         w_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), options.min_scale)
         w = np.concatenate([w_e, np.repeat(w_p, 2)])
-        if np.count_nonzero(w) < 6:
+        if np.count_nonzero(w) < max(options.min_rows, 6):
+            ok = False
             break
         Jw = J * w[:, None]
         A = Jw.T @ J

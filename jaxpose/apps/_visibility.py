@@ -309,7 +309,9 @@ def edge_samples(
 
     Each candidate edge (see the module docstring) gets `max(1, L // spacing)` samples at
     the middles of equal parts of its length, `L` its projected length in pixels (edge
-    ends, where two edges meet in the image, are left out).
+    ends, where two edges meet in the image, are left out); with `image_size`, at most
+    as many as twice the image's perimeter allows (an edge passing near the camera
+    plane projects enormously long).
 
     **Arguments:**
     - `model`: a `Polyhedron` or its `MeshGeometry`.
@@ -350,7 +352,8 @@ def edge_samples(
     ca, cb = a @ R.T + t, b @ R.T + t
     ends = project(np.vstack([ca, cb]), K, dist)
     length = np.linalg.norm(ends[len(chosen) :] - ends[: len(chosen)], axis=1)
-    count = np.clip(length // spacing, 1, 100_000).astype(np.int64)
+    most = 100_000 if image_size is None else 2 * (int(image_size[0]) + int(image_size[1]))
+    count = np.clip(length // spacing, 1, max(most // spacing, 1)).astype(np.int64)
     which = np.repeat(np.arange(len(chosen)), count)
     first = np.cumsum(count) - count
     frac = (np.arange(len(which)) - first[which] + 0.5) / count[which]
