@@ -69,16 +69,27 @@ def pytest_collection_modifyitems(items):
 # which the persistent cache's hits do not raise), per worker, written to
 # `$JAXPOSE_COMPILE_LOG` when set: a clean clone's count is the suite's program count.
 _COMPILES = {"count": 0, "seconds": 0.0}
+# With `$JAXPOSE_COMPILE_DETAIL` set too, every compilation is written there, one line
+# each: worker, test, program name, seconds.
+_DETAIL = {"test": "collection", "lines": []}
 
 
 def _count_compile(event, duration, **kwargs):
     if event == "/jax/core/compile/backend_compile_duration":
         _COMPILES["count"] += 1
         _COMPILES["seconds"] += duration
+        name = kwargs.get("fun_name", "?")
+        _DETAIL["lines"].append(f"{_DETAIL['test']}\t{name}\t{duration:.3f}")
 
 
 if os.environ.get("JAXPOSE_COMPILE_LOG"):
     jax.monitoring.register_event_duration_secs_listener(_count_compile)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    _DETAIL["test"] = item.nodeid
+    return (yield)
 
 
 def pytest_sessionfinish(session):
@@ -87,3 +98,8 @@ def pytest_sessionfinish(session):
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         with open(log, "a") as f:
             f.write(f"{worker} {_COMPILES['count']} {_COMPILES['seconds']:.1f}\n")
+    detail = os.environ.get("JAXPOSE_COMPILE_DETAIL")
+    if detail:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(detail, "a") as f:
+            f.writelines(f"{worker}\t{line}\n" for line in _DETAIL["lines"])

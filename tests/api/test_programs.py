@@ -189,9 +189,10 @@ def test_a_program_stored_beside_jax_persistent_cache_loads_and_runs(tmp_path):
     bad = run(programs, "cached", "b")
     mended, again = run(programs, name="b"), run(programs, name="b")
     assert bad[:2] == ["1", "0"] and mended[:2] == ["1", "1"]
-    # (the replacement, compiled where the broken program was loaded, may be broken too:
-    # then the next process mends it again; either way the answer is right)
-    assert again[:2] in (["0", "1"], ["1", "1"])
+    # (the replacement, compiled where the broken program was loaded, may be broken or
+    # unreadable too: then the next process mends it again; either way the answer is
+    # right)
+    assert again[:2] in (["0", "1"], ["1", "1"], ["1", "0"])
     assert bad[2] == mended[2] == again[2] == warm[2]
 
 
