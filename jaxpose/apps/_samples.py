@@ -19,7 +19,9 @@ def sample_path(*parts: str) -> Path:
     - `opencv_pose_box/`: `resized_IMG_3875.JPG` (a 718 x 480 photograph of a cookie
       box), `box.ply` (its mesh, cm), `cookies_ORB.yml.gz` (OpenCV's textured model of
       it), `corners.csv` (its corners measured on the photograph); the camera: fx =
-      1384.484, fy = 1385.235, cx = 359, cy = 240, no distortion.
+      1384.484, fy = 1385.235, cx = 359, cy = 240, no distortion. `box.mp4`: OpenCV's
+      tutorial video of the box (640 x 480, 455 frames), `box_video_camera.yml` the
+      camera that tutorial assumes for it (approximate).
     - `chessboard/`: `left01.jpg` ... `left14.jpg` (640 x 480, a 9 x 6 board of 25 mm
       squares) and `left_intrinsics.yml` (OpenCV's calibration of that camera).
 
