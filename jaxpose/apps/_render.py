@@ -169,6 +169,13 @@ def render(
             raise ValueError(f"{label} must be a number >= 0, got {value!r}")
     if not 0 <= ambient <= 1:
         raise ValueError(f"ambient must be in [0, 1], got {ambient!r}")
+    for label, value in (("gain", gain), ("offset", offset), ("occluder_grey", occluder_grey)):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+            raise ValueError(f"{label} must be a finite number, got {value!r}")
+    if occluder is not None:
+        box = np.asarray(occluder, dtype=np.float64).reshape(-1)
+        if box.shape != (4,) or not np.all(np.isfinite(box)):
+            raise ValueError(f"occluder must be 4 finite numbers x0, y0, x1, y1: {occluder!r}")
     w, h = int(image_size[0]), int(image_size[1])
     s = supersample
     shade = _shades(geo, R, shades, light, ambient)

@@ -338,6 +338,8 @@ def edge_samples(
     for label, value in (("spacing", spacing), ("crease_angle", crease_angle)):
         if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
             raise ValueError(f"{label} must be a number > 0, got {value!r}")
+    if isinstance(margin, bool) or not isinstance(margin, int | float) or not margin >= 0:
+        raise ValueError(f"margin must be a number >= 0, got {margin!r}")
     if image_size is not None and (
         len(image_size) != 2 or min(int(image_size[0]), int(image_size[1])) < 1
     ):

@@ -69,8 +69,10 @@ class Frames:
         return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if self.gray else frame
 
     def __len__(self) -> int:
-        """The number of frames the source will give (a camera's is unknown: `stop - start`
-        when `stop` is set, else a `TypeError`, as for any iterable without a length)."""
+        """The number of frames the source will give: a folder's images; a video's frame
+        count as its container reports it (OpenCV's estimate: a frame more or less than
+        decode, as for `box.mp4`'s 456 of 455); a camera's is unknown: `stop - start`
+        when `stop` is set, else a `TypeError`, as for any iterable without a length."""
         if self.kind == "folder":
             total = len(self.files)
         elif self.kind == "video":

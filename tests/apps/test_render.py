@@ -134,6 +134,10 @@ def test_bad_arguments():
         render(BOX, K, None, R, t, SIZE, background=np.zeros((4, 4), np.uint8))
     with pytest.raises(ValueError, match="noise"):
         render(BOX, K, None, R, t, SIZE, noise=-1)
+    with pytest.raises(ValueError, match="gain"):
+        render(BOX, K, None, R, t, SIZE, gain=float("nan"))
+    with pytest.raises(ValueError, match="occluder"):
+        render(BOX, K, None, R, t, SIZE, occluder=(1, 2, 3))
     with pytest.raises(ValueError, match="count"):
         smooth_trajectory(R, t, 0)
     with pytest.raises(ValueError, match="Rs"):

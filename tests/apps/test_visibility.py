@@ -136,6 +136,10 @@ def test_bad_arguments():
         edge_samples(BOX, K, None, R, [0, 0, np.nan])
     with pytest.raises(ValueError, match="spacing"):
         edge_samples(BOX, K, None, R, t, spacing=0)
+    with pytest.raises(ValueError, match="margin"):
+        edge_samples(BOX, K, None, R, t, margin=-1.0)
+    with pytest.raises(ValueError, match="grazing"):
+        edge_samples(BOX, K, None, R, t, grazing=0)
     with pytest.raises(ValueError, match="dist"):
         cast_rays(BOX, K, [1.0, 2.0], R, t, np.zeros((1, 2)))
     with pytest.raises(ValueError, match="pixels"):
