@@ -23,6 +23,7 @@ from .api import solve_batch as solve_batch
 from .api import solve_many as solve_many
 from .api import solve_pnp as solve_pnp
 from .api import solve_pnp_batch as solve_pnp_batch
+from .api import solve_pnp_generic as solve_pnp_generic
 from .api import solve_pnp_ransac as solve_pnp_ransac
 from .apps import Polyhedron as Polyhedron
 from .apps import default_bench as default_bench

@@ -32,6 +32,7 @@ from ._options import split_values as split_values
 from ._options import with_values as with_values
 from ._pipeline import Solution as Solution
 from ._pipeline import solve_problems as solve_problems
+from ._planar import planar_partner as planar_partner
 from ._robust import RobustResult as RobustResult
 from ._robust import robust as robust
 from ._triplets import Initial as Initial
