@@ -42,6 +42,7 @@ from ._recognition import verify as verify
 from ._recognition import verify_hypotheses as verify_hypotheses
 from ._recognize import Recognition as Recognition
 from ._recognize import recognize as recognize
+from ._render import face_textures as face_textures
 from ._render import noise_texture as noise_texture
 from ._render import render as render
 from ._render import render_sequence as render_sequence

@@ -28,7 +28,7 @@ from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
 from ._visibility import MeshGeometry, _check_pose, mesh_geometry, project
 
-__all__ = ["noise_texture", "render", "render_sequence", "smooth_trajectory"]
+__all__ = ["face_textures", "noise_texture", "render", "render_sequence", "smooth_trajectory"]
 
 
 def _rodrigues(w: np.ndarray) -> np.ndarray:
@@ -85,6 +85,17 @@ def _inset(poly: np.ndarray, d: float) -> np.ndarray:
     before = np.roll(inward, 1, axis=0)  # the side ending at each corner
     cos = np.clip((inward * before).sum(axis=1, keepdims=True), -0.875, 1.0)
     return poly + d * (inward + before) / (1.0 + cos)
+
+
+def _plane(geo: MeshGeometry, f, R, t, scale: float) -> np.ndarray:
+    """`(3, 3)`: texture pixel `(i, j, 1)` of face `f` to its camera-frame point: the
+    face's plane point `c + scale (i a0 + j a1)`, `a0, a1` its in-plane axes and `c` the
+    corner of its bounding box in them (so a texture covers the face from its pixel
+    `(0, 0)`)."""
+    a0, a1 = geo.axes[f]
+    low = geo.polygons[f].min(axis=0)
+    corner = geo.origins[f] + low[0] * a0 + low[1] * a1
+    return np.column_stack([R @ a0, R @ a1, R @ corner + t]) @ np.diag([scale, scale, 1.0])
 
 
 def _paint_texture(canvas, poly, texture, homography, shade, shift) -> None:
@@ -213,12 +224,8 @@ def render(
         if texture is None:
             cv2.fillPoly(canvas, [poly], float(shade[f]), cv2.LINE_8, shift)
             continue
-        # Plane point o + u a0 + v a1, (u, v) = texture_scale * texture pixel.
-        o, (a0, a1) = geo.origins[f], geo.axes[f]
-        plane = np.column_stack([R @ a0, R @ a1, R @ o + t]) @ np.diag(
-            [texture_scale, texture_scale, 1.0]
-        )
-        _paint_texture(canvas, poly, textures[f], Ks @ plane, shade[f], shift)
+        _paint_texture(canvas, poly, textures[f], Ks @ _plane(geo, f, R, t, texture_scale),
+                       shade[f], shift)  # fmt: skip
     image = cv2.resize(canvas, (w, h), interpolation=cv2.INTER_AREA) if s > 1 else canvas
     if dist is not None:
         grid = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1).astype(np.float64)
@@ -237,6 +244,74 @@ def render(
         rng = np.random.default_rng(0) if rng is None else rng
         image = image + rng.normal(0.0, float(noise), image.shape).astype(np.float32)
     return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+@no_type_check
+def face_textures(
+    photograph,
+    model: Polyhedron | MeshGeometry,
+    K,
+    dist,
+    R,
+    t,
+    *,
+    texture_scale: float = 0.1,
+    fallback: np.ndarray | None = None,
+    min_cosine: float = 0.2,
+) -> list[np.ndarray]:
+    """Textures for `render` cut from a photograph of the object at a known pose: each
+    face turned towards the camera (the cosine between its normal and its line of sight
+    at least `min_cosine`) is rectified, the photograph warped by the homography of the
+    face's plane, into a grey image of `texture_scale` model units per pixel covering
+    the face's bounding box (as `render` lays textures).
+
+    **Arguments:** `photograph`: grey or BGR uint8; `model`, `K`, `dist`, `R`, `t`: as for
+    `render` (the photograph's camera and pose; its distortion is removed first);
+    `texture_scale` (> 0); `fallback`: the texture of the faces not seen (None:
+    `noise_texture()`); `min_cosine` in `[0, 1)`.
+
+    **Returns:** one uint8 texture per face, in the model's face order.
+
+    **Raises:** `ValueError` naming the argument.
+    """
+    import cv2
+
+    geo = mesh_geometry(model)
+    K, dist, R, t = _check_pose(K, dist, R, t)
+    if (
+        not isinstance(photograph, np.ndarray)
+        or photograph.dtype != np.uint8
+        or (photograph.ndim not in (2, 3))
+    ):
+        raise ValueError("photograph must be a grey or BGR uint8 image")
+    grey = photograph if photograph.ndim == 2 else cv2.cvtColor(photograph, cv2.COLOR_BGR2GRAY)
+    if dist is not None:
+        grey = cv2.undistort(grey, K, dist)
+    if isinstance(texture_scale, bool) or not texture_scale > 0:
+        raise ValueError(f"texture_scale must be a number > 0, got {texture_scale!r}")
+    if not 0 <= min_cosine < 1:
+        raise ValueError(f"min_cosine must be in [0, 1), got {min_cosine!r}")
+    if fallback is None:
+        fallback = noise_texture()
+    elif not isinstance(fallback, np.ndarray) or fallback.ndim != 2 or fallback.dtype != np.uint8:
+        raise ValueError("fallback must be a 2D uint8 image")
+    centre = -R.T @ t
+    sight = centre - geo.corners.mean(axis=1)
+    cos = (geo.normals * sight).sum(axis=1) / np.maximum(np.linalg.norm(sight, axis=1), 1e-300)
+    out = []
+    for f in range(len(geo.normals)):
+        if cos[f] < max(min_cosine, 1e-9):
+            out.append(fallback)
+            continue
+        extent = np.ptp(geo.polygons[f], axis=0) / texture_scale
+        w, h = (int(np.ceil(v)) + 1 for v in extent)
+        if w * h > 4096 * 4096:
+            raise ValueError("texture_scale is too small for the model's faces")
+        H = K @ _plane(geo, f, R, t, texture_scale)
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        out.append(cv2.warpPerspective(grey, H, (w, h), flags=flags,
+                                       borderMode=cv2.BORDER_REPLICATE))  # fmt: skip
+    return out
 
 
 @no_type_check

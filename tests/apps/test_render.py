@@ -8,6 +8,7 @@ import pytest
 from jaxpose.apps import (
     Polyhedron,
     face_mask,
+    face_textures,
     noise_texture,
     read_ply,
     render,
@@ -82,6 +83,36 @@ def test_texture_moves_with_the_pose():
     assert a[crop].std() > 10
     (dx, dy), _ = cv2.phaseCorrelate(a[crop].astype(np.float64), b[crop].astype(np.float64))
     assert abs(dx - 0.37) < 0.08 and abs(dy + 0.52) < 0.08
+
+
+def test_box_textured_from_its_photograph():
+    photo = cv2.imread(str(sample_path("opencv_pose_box", "resized_IMG_3875.JPG")))
+    K_photo = np.array([[1384.484, 0, 359], [0, 1385.235, 240], [0, 0, 1.0]])
+    R = cv2.Rodrigues(np.array([2.05445, -0.78674, 0.31403]))[0]  # the reference pose
+    t = np.array([-1.0904, 11.6255, 91.0701])
+    textures = face_textures(photo, BOX, K_photo, None, R, t, texture_scale=0.05)
+    assert len(textures) == len(BOX.faces) and all(x.dtype == np.uint8 for x in textures)
+    grey = cv2.cvtColor(photo, cv2.COLOR_BGR2GRAY)
+    again = render(
+        BOX,
+        K_photo,
+        None,
+        R,
+        t,
+        (718, 480),
+        texture=textures,
+        texture_scale=0.05,
+        shades=[255.0] * 6,
+        background=grey,
+    )
+    inside = face_mask(BOX, K_photo, None, R, t, (718, 480), erode=3) > 0
+    a, b = again[inside].astype(float), grey[inside].astype(float)
+    assert np.corrcoef(a, b)[0, 1] > 0.9 and np.median(np.abs(a - b)) < 6
+    away = cv2.dilate(face_mask(BOX, K_photo, None, R, t, (718, 480)), np.ones((9, 9))) == 0
+    diff = np.abs(again[away].astype(float) - grey[away])
+    assert np.median(diff) <= 2  # the background, resampled up and down
+    with pytest.raises(ValueError, match="photograph"):
+        face_textures(photo.astype(float), BOX, K_photo, None, R, t)
 
 
 def test_options():
