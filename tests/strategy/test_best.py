@@ -21,6 +21,17 @@ from jaxpose.strategy._best import (
     spread_matches,
 )
 
+# The helpers the tests call outside the solvers, jitted: one program each rather than
+# one per eager operation.
+_rotvec_to_matrix = jax.jit(jp.geometry.rotvec_to_matrix)
+_rotvecs_to_matrices = jax.jit(jax.vmap(jp.geometry.rotvec_to_matrix))
+_camera_matrix = jax.jit(jp.camera_matrix)
+_project = jax.jit(jp.project)
+_observations = jax.jit(jax.vmap(jp.observations))
+_is_success = jax.jit(jp.Status.is_success)
+_spread_matches = jax.jit(spread_matches, static_argnums=2)
+_answer_triplets = jax.jit(answer_triplets, static_argnums=1)
+
 
 def _problems(kind: str, n: int, B: int, noise: float, seed: int):
     rng = np.random.default_rng(seed)
@@ -53,8 +64,7 @@ def test_best_roots_reach_the_answer_of_every_triplet():
     np.testing.assert_allclose(quick.error, full.error, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(quick.pose.R, full.pose.R, atol=1e-7)
     np.testing.assert_allclose(quick.pose.t, full.pose.t, atol=1e-6)
-    for q, f in zip(np.asarray(quick.status), np.asarray(full.status), strict=True):
-        assert jp.Status.is_success(q) == jp.Status.is_success(f)
+    np.testing.assert_array_equal(_is_success(quick.status), _is_success(full.status))
 
 
 def _collinear_spread(B: int, seed: int, noise: float = 0.5, inner: int = 0):
@@ -62,7 +72,7 @@ def _collinear_spread(B: int, seed: int, noise: float = 0.5, inner: int = 0):
     four matches farthest apart in the image (`spread_matches`) lie on one line: four
     points on a 3D line, three off it near its ends, `inner` off it near its middle."""
     rng = np.random.default_rng(seed)
-    C = np.asarray(jp.camera_matrix(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])))
+    C = np.asarray(_camera_matrix(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])))
     M, I = [], []
     for _ in range(B):
         d = rng.normal(size=3) * [1, 1, 0.15]
@@ -75,10 +85,10 @@ def _collinear_spread(B: int, seed: int, noise: float = 0.5, inner: int = 0):
         off = [centre + 0.9 * d + e[0], centre - 0.9 * d + e[1], centre + 0.85 * d + e[2]]
         mid = [centre + rng.uniform(-0.4, 0.4) * d + e[k % 3] * 0.6 for k in range(inner)]
         pc = np.array(line + off + mid)  # camera frame
-        R = jp.geometry.rotvec_to_matrix(rng.normal(size=3))
+        R = _rotvec_to_matrix(rng.normal(size=3))
         t = rng.normal(size=3)
         M.append((pc - t) @ np.asarray(R))  # pc = R m + t
-        uv = np.asarray(jp.project(C, pc))
+        uv = np.asarray(_project(C, pc))
         I.append(uv + rng.normal(scale=noise, size=uv.shape))
     return np.broadcast_to(C, (B, 3, 4)), np.stack(M), np.stack(I)
 
@@ -117,7 +127,7 @@ def test_wider_rung_settles_what_the_spread_roots_leave():
     wider, full = wider(C, M, I), _many(None)(C, M, I)
     assert np.all(np.asarray(wider.accepted)) and np.all(np.asarray(full.accepted))
     assert np.all(np.max(np.asarray(wider.triplet), axis=1) >= 4)
-    assert np.all(jp.Status.is_success(np.asarray(wider.status)))
+    assert np.all(np.asarray(_is_success(wider.status)))
     np.testing.assert_allclose(wider.error, full.error, rtol=1e-9)
     np.testing.assert_allclose(wider.pose.R, full.pose.R, atol=1e-9)
     np.testing.assert_allclose(wider.pose.t, full.pose.t, rtol=1e-6, atol=1e-6)
@@ -129,7 +139,7 @@ def test_fallback_runs_the_whole_mixed_algorithm():
     back, in passes of `fallback_slots(B)` problems: the outcome is the whole mixed
     algorithm's, which finds the pose from the other triplets."""
     C, M, I = _collinear_spread(12, seed=4)
-    chosen = np.asarray(spread_matches(jnp.asarray(I), jnp.ones((12, 7), bool), 4))
+    chosen = np.asarray(_spread_matches(I, np.ones((12, 7), bool), 4))
     assert np.all(np.sort(chosen, axis=1) == [0, 1, 2, 3])  # the line's four
     assert fallback_slots(12) == 1  # twelve passes
     quick, full = _many(4, None)(C, M, I), _many(None)(C, M, I)
@@ -149,7 +159,7 @@ def test_best_of_roots_alone():
     """Without the fallback: the best roots are accepted on noisy ordinary problems and
     report the triplet their root came from."""
     C, M, I = _problems("ordinary", 8, 3, noise=1.0, seed=5)
-    obs = jax.vmap(jp.observations)(C, M, I)
+    obs = _observations(C, M, I)
     triplets = jp.strategy.triplet_indices(8)
     best = jax.jit(jax.vmap(lambda o: best_of_roots(o, triplets, jp.Options())))(obs)
     assert np.all(np.asarray(best.accepted))
@@ -166,7 +176,7 @@ def test_spread_matches_is_farthest_point_sampling():
     image = rng.uniform(0, 500, size=(4, 11, 2))
     mask = rng.uniform(size=(4, 11)) > 0.3
     mask[:, :3] = True
-    chosen = np.asarray(spread_matches(jax.numpy.asarray(image), jax.numpy.asarray(mask), 3))
+    chosen = np.asarray(_spread_matches(image, mask, 3))
     for b in range(4):
         used = np.flatnonzero(mask[b])
         gap = np.sum((image[b] - image[b, used].mean(axis=0)) ** 2, axis=1)
@@ -184,30 +194,32 @@ def test_answer_triplets_choices():
     """`n <= spread_points`: every triplet; more: the triplets of the spread matches;
     `spread_points=None`: those of `select_triplets`."""
     C, M, I = _problems("ordinary", 9, 2, noise=1.0, seed=7)
-    obs = jax.vmap(jp.observations)(C, M, I)
-    few = answer_triplets(jax.tree.map(lambda a: a[:, :5], obs), jp.Options(spread_points=6))
-    np.testing.assert_array_equal(few[0], jp.strategy.triplet_indices(5))
-    spread = np.asarray(answer_triplets(obs, jp.Options(spread_points=6)))
+    obs = _observations(C, M, I)
+    few = _answer_triplets(
+        jax.tree.map(lambda a: np.asarray(a)[:, :5], obs), jp.Options(spread_points=6)
+    )
+    np.testing.assert_array_equal(np.asarray(few)[0], jp.strategy.triplet_indices(5))
+    spread = np.asarray(_answer_triplets(obs, jp.Options(spread_points=6)))
     assert spread.shape == (2, 20, 3)
     for b in range(2):
         assert len(np.unique(spread[b])) == 6
-    default = np.asarray(answer_triplets(obs, jp.Options()))
+    default = np.asarray(_answer_triplets(obs, jp.Options()))
     assert default.shape == (2, 4, 3)
-    every = answer_triplets(obs, jp.Options(spread_points=None))
-    np.testing.assert_array_equal(every[1], jp.strategy.triplet_indices(9))
+    every = _answer_triplets(obs, jp.Options(spread_points=None))
+    np.testing.assert_array_equal(np.asarray(every)[1], jp.strategy.triplet_indices(9))
 
 
 def test_distinct_best_keeps_its_picks_apart():
     """The picks are in order of score, pairwise more than `DISTINCT_ANGLE` apart, and a
     slot with nothing left is marked not found."""
     rng = np.random.default_rng(8)
-    R = np.stack([jp.geometry.rotvec_to_matrix(v) for v in 0.05 * rng.normal(size=(12, 3))])
-    R[6:] = np.stack([jp.geometry.rotvec_to_matrix(v) for v in rng.normal(size=(6, 3))])
-    score = jax.numpy.asarray(rng.uniform(size=(1, 12)))
-    pick, found = distinct_best(score, mat_from_array(jax.numpy.asarray(R[None])), 12)
-    pick, found = np.asarray(pick[0]), np.asarray(found[0])
+    R = np.stack([_rotvec_to_matrix(v) for v in 0.05 * rng.normal(size=(12, 3))])
+    R[6:] = np.stack([_rotvec_to_matrix(v) for v in rng.normal(size=(6, 3))])
+    score = rng.uniform(size=(1, 12))
+    pick, found = jax.jit(lambda s, R: distinct_best(s, mat_from_array(R), 12))(score, R[None])
+    pick, found = np.asarray(pick)[0], np.asarray(found)[0]
     kept = pick[found]
-    assert np.all(np.diff(np.asarray(score[0])[kept]) > 0)
+    assert np.all(np.diff(score[0][kept]) > 0)
     for a in range(len(kept)):
         for b in range(a):
             cos = (np.trace(R[kept[a]].T @ R[kept[b]]) - 1) / 2
@@ -228,24 +240,26 @@ def test_finish_linear_batch_finishes_at_opencvs_optimum():
         np.stack([getattr(s, a) for s in scenes])
         for a in ("camera", "model_points", "image_points")
     )
-    obs = jax.vmap(jp.observations)(C, M, I)
+    obs = _observations(C, M, I)
     refs = [opencv_optimum(s) for s in scenes]
     R = np.stack([r for r, _ in refs])
     t = np.stack([t for _, t in refs])
-    nudge = jax.vmap(jp.geometry.rotvec_to_matrix)(jnp.asarray(rng.normal(scale=1e-4, size=(6, 3))))
-    start = jp.geometry.Pose(jnp.einsum("bij,bjk->bik", nudge, R), jnp.asarray(t * (1 + 1e-4)))
+    nudge = np.asarray(_rotvecs_to_matrices(rng.normal(scale=1e-4, size=(6, 3))))
+    start = jp.geometry.Pose(np.einsum("bij,bjk->bik", nudge, R), t * (1 + 1e-4))
 
+    @jax.jit
     def error(obs, pose):
         return jax.vmap(jp.geometry.reprojection_rms)(
             jnp.asarray(C), pose.R, pose.t, jnp.asarray(M), jnp.asarray(I)
         )
 
-    found = Answer(jnp.zeros((6, 3), jnp.int32), start, error(obs, start), jnp.ones(6, jnp.int32))
-    settled = jax.jit(finish_linear_batch)(obs, found)
-    best = np.asarray(error(obs, jp.geometry.Pose(jnp.asarray(R), jnp.asarray(t))))
+    found = Answer(np.zeros((6, 3), np.int32), start, error(obs, start), np.ones(6, np.int32))
+    finish = jax.jit(finish_linear_batch)
+    settled = finish(obs, found)
+    best = np.asarray(error(obs, jp.geometry.Pose(R, t)))
     np.testing.assert_allclose(np.asarray(settled.error), best, rtol=1e-9)
     np.testing.assert_allclose(np.asarray(settled.pose.R), R, atol=1e-6)  # RefineLM: ~1e-7
     assert np.all(np.asarray(settled.error) <= np.asarray(found.error))
     # an answer at the optimum stays there (Gauss-Newton converges linearly: within 1e-8)
-    again = jax.jit(finish_linear_batch)(obs, settled)
+    again = finish(obs, settled)
     np.testing.assert_allclose(np.asarray(again.pose.t), np.asarray(settled.pose.t), rtol=1e-8)
