@@ -21,8 +21,14 @@ Per frame, from the previous pose (the prediction):
    `jaxpose.solvers.linear`'s `"depth"` weighting). Rows are weighted by Tukey's
    biweight of their residual over a robust scale (1.4826 times the median absolute
    residual, edges and points apart), so that wrong matches (a hand over the edge,
-   a neighbouring edge near a corner) lose their say. The 6 x 6 normal equations are
-   solved, the motion applied exactly, and the step repeated.
+   a neighbouring edge near a corner) lose their say, and each kind by the inverse
+   square of its scale (the better measured kind counts more: points tracked on a
+   plain face, mostly noise, hardly count). The 6 x 6 normal equations are solved,
+   the motion applied exactly, and the step repeated.
+
+Each edge sample expects the contrast (sign and size) that the match nearest to it on
+the model had on the last frame, so that a printed line beside an edge is not taken
+for it.
 
 The edges are measured again from the refined pose (`rounds` times, the search range
 shrinking to `refine_search`). Distortion is removed from the measurements first
@@ -78,8 +84,14 @@ class TrackOptions:
       pose, `ok` False.
     - `grazing`: faces seen at more than this angle (degrees) from their normal give
       no edges (`edge_samples`); an edge whose faces change between seen and not
-      forgets its contrast sign.
+      forgets its contrasts.
     - `choose`: which image edge a sample takes (`moving_edges`'s `choose`).
+    - `ratio`: each sample expects the contrast (sign and size, within this factor) the
+      match nearest to it on the model had on the last frame (`moving_edges`'s
+      `contrast` and `ratio`); None: the sign only.
+    - `edges`: `"all"` the edges seen, or `"outline"` only those where the object meets
+      what lies behind it (for objects whose faces are alike, where creases hardly
+      show).
     - `predict`: the first guess of a frame's pose: `"velocity"` (the last motion
       repeated) or `"still"` (the last pose).
     - `recast`: find the KLT points' model points again at every frame's pose (the
@@ -103,6 +115,8 @@ class TrackOptions:
     min_rows: int = 12
     grazing: float = 90.0
     choose: str = "strongest"
+    ratio: float | None = 2.0
+    edges: str = "all"
     predict: str = "velocity"
     recast: bool = True
     use_edges: bool = True
@@ -153,13 +167,13 @@ def _undistort(pixels: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
     return out.reshape(-1, 2)
 
 
-def _tukey(residual: np.ndarray, min_scale: float) -> np.ndarray:
-    """Tukey's biweight of residuals over their robust scale."""
+def _tukey(residual: np.ndarray, min_scale: float) -> tuple[np.ndarray, float]:
+    """Tukey's biweight of residuals over their robust scale, and that scale."""
     if len(residual) == 0:
-        return np.zeros(0)
+        return np.zeros(0), 1.0
     scale = max(1.4826 * float(np.median(np.abs(residual))), min_scale)
     z = residual / (_TUKEY * scale)
-    return np.where(np.abs(z) < 1, (1 - z**2) ** 2, 0.0)
+    return np.where(np.abs(z) < 1, (1 - z**2) ** 2, 0.0), scale
 
 
 class _Measurements(NamedTuple):
@@ -210,14 +224,18 @@ def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
     rms, ok = 0.0, False
     for _ in range(options.iterations):
         r, J, centre = _rows(R, t, K, meas)
-        w_e = _tukey(r[:n_e], options.min_scale)
+        w_e, s_e = _tukey(r[:n_e], options.min_scale)
         r_p = r[n_e:].reshape(-1, 2)
-        w_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), options.min_scale)
+        w_p, s_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), options.min_scale)
         w = np.concatenate([w_e, np.repeat(w_p, 2)])
         if np.count_nonzero(w) < max(options.min_rows, 6):
             ok = False
             break
-        Jw = J * w[:, None]
+        # Each kind of measurement weighted by the inverse of its noise's variance, as
+        # its robust scale estimates it (points tracked badly, e.g. on a plain face,
+        # then count little against the edges, and the other way round).
+        precision = np.concatenate([np.full(n_e, s_e**-2), np.full(2 * n_p, s_p**-2)])
+        Jw = J * (w * precision)[:, None]
         A = Jw.T @ J
         b = -(Jw.T @ r)
         scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
@@ -229,7 +247,7 @@ def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
             break
         dR = _rotation(step[3:])
         R, t = _orthonormal(dR @ R), dR @ (t - centre) + centre + step[:3]
-        rms = float(np.sqrt((w * r**2).sum() / max(w.sum(), 1e-300)))
+        rms = float(np.sqrt((w * r**2).sum() / max(w.sum(), 1e-300)))  # (unscaled)
         ok = True
     return R, t, w_e, w_p, rms, ok
 
@@ -239,14 +257,44 @@ class _Corners(NamedTuple):
     model: np.ndarray  # (P, 3)
 
 
-def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrast, options):
+class _Contrasts(NamedTuple):
+    """The signed contrast each edge match had, keyed by `edge + fraction along it`
+    (sorted), for the next frame's samples at the same places on the model."""
+
+    keys: np.ndarray
+    values: np.ndarray
+
+
+_NO_CONTRAST = _Contrasts(np.zeros(0), np.zeros(0))
+
+
+def _expected(table: _Contrasts, keys: np.ndarray, reach: float = 0.05) -> np.ndarray:
+    """The contrast of the nearest entry on the same edge within `reach` (a fraction of
+    the edge's length) of each key, 0 where none."""
+    if len(table.keys) == 0 or len(keys) == 0:
+        return np.zeros(len(keys))
+    i = np.searchsorted(table.keys, keys).clip(1, len(table.keys) - 1)
+    lo, hi = table.keys[i - 1], table.keys[i]
+    j = np.where(np.abs(keys - lo) <= np.abs(hi - keys), i - 1, i)
+    near = table.keys[j]
+    same = (np.floor(near) == np.floor(keys)) & (np.abs(near - keys) <= reach)
+    return np.where(same, table.values[j], 0.0)
+
+
+def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, options):
     samples = edge_samples(geo, K, dist, R, t, spacing=options.spacing, image_size=size,
                            margin=search + 2.0, grazing=options.grazing)  # fmt: skip
-    sign = contrast[samples.edge]
+    ends = np.asarray(geo.model.edges)[samples.edge]
+    a, b = geo.model.vertices[ends[:, 0]], geo.model.vertices[ends[:, 1]]
+    frac = ((samples.points - a) * (b - a)).sum(axis=1) / np.maximum(
+        ((b - a) ** 2).sum(axis=1), 1e-300
+    )
+    keys = samples.edge + np.clip(frac, 0.0, 0.999)
     found = moving_edges(grey, samples.pixels, samples.normals, search=search,
                          threshold=options.threshold, mask=samples.visible,
-                         contrast=sign, choose=options.choose)  # fmt: skip
-    keep = found.valid
+                         contrast=_expected(contrasts, keys), choose=options.choose,
+                         ratio=options.ratio)  # fmt: skip
+    keep = found.valid & (samples.outline | (options.edges == "all"))
     q = found.matched[keep]
     ahead = q + np.column_stack([found.normals[keep, 1], -found.normals[keep, 0]])
     qu, au = _undistort(q, K, dist), _undistort(ahead, K, dist)
@@ -254,7 +302,7 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrast, options
     n = np.column_stack([-d[:, 1], d[:, 0]])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     lines = np.column_stack([n, -(n * qu).sum(axis=1)])
-    return samples.points[keep], lines, samples.edge[keep], found.strength[keep]
+    return samples.points[keep], lines, keys[keep], found.strength[keep]
 
 
 @no_type_check
@@ -293,7 +341,7 @@ def track(
         nonlocal R, t
         previous, size = None, None
         corners = _Corners(np.zeros((0, 2)), np.zeros((0, 3)))
-        contrast = np.zeros(len(geo.model.edges))
+        contrasts = _NO_CONTRAST
         last_seen, motion = None, None
         for index, frame in enumerate(frames):
             grey = _grey(frame)
@@ -313,16 +361,16 @@ def track(
             if options.predict == "velocity" and motion is not None:
                 R, t = _orthonormal(motion[0] @ R), motion[0] @ t + motion[1]
             ok, n_edges, w_p, rms = False, 0, np.zeros(len(points_px)), 0.0
-            edge_strength = np.zeros(len(contrast))
+            table = _NO_CONTRAST
             for round_ in range(max(options.rounds, 1)):
                 search = options.search if round_ == 0 else options.refine_search
                 if options.use_edges:
                     e_model, e_lines, e_index, e_strength = _edge_measurements(
-                        grey, geo, K, dist, R, t, size, search, contrast, options
+                        grey, geo, K, dist, R, t, size, search, contrasts, options
                     )
                 else:
                     e_model, e_lines = np.zeros((0, 3)), np.zeros((0, 3))
-                    e_index, e_strength = np.zeros(0, int), np.zeros(0)
+                    e_index, e_strength = np.zeros(0), np.zeros(0)
                 meas = _Measurements(e_model, e_lines, points_model,
                                      _undistort(points_px, K, dist))  # fmt: skip
                 R1, t1, w_e, w_p, rms, ok = _solve(R, t, K, meas, options)
@@ -330,21 +378,22 @@ def track(
                     break
                 R, t = R1, t1
                 n_edges = int(np.count_nonzero(w_e))
-                edge_strength = np.zeros(len(contrast))
-                np.add.at(edge_strength, e_index, e_strength * (w_e > 0))
+                kept = w_e > 0
+                order = np.argsort(e_index[kept])
+                table = _Contrasts(e_index[kept][order], e_strength[kept][order])
             if not ok or not np.all(np.isfinite(t)):
                 R, t = R0, t0
                 ok, motion = False, None
             else:
                 motion = (R @ R0.T, t - R @ R0.T @ t0) if index else None
-                contrast = np.sign(edge_strength)
                 # An edge whose faces changed between seen and not changes its contrast.
                 seen = facing(geo, R, t, options.grazing)
                 sides = np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
                 if last_seen is not None:
                     changed = np.any(sides != last_seen, axis=1)
-                    contrast[changed] = 0.0
-                last_seen = sides
+                    same = ~changed[np.floor(table.keys).astype(int)]
+                    table = _Contrasts(table.keys[same], table.values[same])
+                contrasts, last_seen = table, sides
                 if len(points_px):  # drop the points the solve rejected
                     corners = _Corners(corners.pixels[w_p > 0], corners.model[w_p > 0])
                 if options.recast and len(corners.pixels):

@@ -83,6 +83,9 @@ class EdgeSamples(NamedTuple):
     - `edge`: `(S,)` int32 index into `model.edges`.
     - `visible`: `(S,)` bool: in front of the camera, inside the image (when its size
       is given) and hidden by no face. Where False the other fields are still finite.
+    - `outline`: `(S,)` bool: the sample's edge is on the model's outline (its other
+      face turned away, or none), where the object meets what lies behind it; the others
+      are creases between two faces seen.
     """
 
     points: np.ndarray
@@ -91,6 +94,7 @@ class EdgeSamples(NamedTuple):
     normals: np.ndarray
     edge: np.ndarray
     visible: np.ndarray
+    outline: np.ndarray
 
 
 class RayHits(NamedTuple):
@@ -276,7 +280,9 @@ def _nearest_crossing(geo, origin, directions, faces=None):
 # --------------------------------------------------------------------------- edges
 
 
-def _candidate_edges(geo: MeshGeometry, front: np.ndarray, crease_angle: float) -> np.ndarray:
+def _candidate_edges(geo: MeshGeometry, front: np.ndarray, crease_angle: float):
+    """Which edges are drawn, and which of them are outlines (a face turned away or
+    none on their other side, or no face at all: the object against what is behind)."""
     ef = geo.edge_faces
     has = ef >= 0
     face_front = np.where(has, front[np.maximum(ef, 0)], False)
@@ -286,7 +292,7 @@ def _candidate_edges(geo: MeshGeometry, front: np.ndarray, crease_angle: float) 
     silhouette = two & (face_front[:, 0] != face_front[:, 1])
     border = has[:, 0] & ~has[:, 1]
     seen = face_front.any(axis=1) & (~two | crease | silhouette | border)
-    return seen | ~has[:, 0]
+    return seen | ~has[:, 0], silhouette | border | ~has[:, 0]
 
 
 @no_type_check
@@ -349,7 +355,8 @@ def edge_samples(
     if isinstance(grazing, bool) or not isinstance(grazing, int | float) or not 0 < grazing <= 90:
         raise ValueError(f"grazing must be a number in (0, 90], got {grazing!r}")
     front = facing(geo, R, t, grazing)
-    chosen = np.flatnonzero(_candidate_edges(geo, front, crease_angle))
+    drawn, outline = _candidate_edges(geo, front, crease_angle)
+    chosen = np.flatnonzero(drawn)
     a, b = vertices[edges[chosen, 0]], vertices[edges[chosen, 1]]
     ca, cb = a @ R.T + t, b @ R.T + t
     ends = project(np.vstack([ca, cb]), K, dist)
@@ -382,9 +389,8 @@ def edge_samples(
         s, _ = _nearest_crossing(geo, centre, points[idx] - centre)
         visible[idx] = ~(s < 1.0 - _DEPTH_TOL)
     pixels = np.where(np.isfinite(pixels), pixels, 0.0)
-    return EdgeSamples(
-        points, pixels, tangent, normal, chosen[which].astype(np.int32), visible
-    )  # fmt: skip
+    edge = chosen[which].astype(np.int32)
+    return EdgeSamples(points, pixels, tangent, normal, edge, visible, outline[edge])
 
 
 # --------------------------------------------------------------------------- area, rays

@@ -107,6 +107,7 @@ def moving_edges(
     mask=None,
     along: int = 1,
     choose: str = "strongest",
+    ratio: float | None = None,
 ) -> EdgeMatches:
     """Find, along each sample's normal, the image edge of the expected orientation (see
     the module docstring).
@@ -120,6 +121,9 @@ def moving_edges(
     - `threshold`: the least `|d|` (grey levels per pixel) a match needs.
     - `contrast`: `(S,)` the signed `strength` each sample had on the previous frame:
       only edges of that sign are taken where it is nonzero. None: either sign.
+    - `ratio`: with `contrast`, also the size of the derivative: within `ratio` times
+      (or one `ratio`-th of) the expected one (> 1; None: any size). A printed line next
+      to an object's outline rarely has the outline's contrast.
     - `mask`: `(S,)` bool, the samples to look for (e.g. `EdgeSamples.visible`); None:
       all.
     - `along`: pixels either side along the edge averaged (0: the normal line only).
@@ -152,6 +156,9 @@ def moving_edges(
         if contrast.shape != (count,) or not np.all(np.isfinite(contrast)):
             raise ValueError(f"contrast must be {count} finite values")
         sign = np.sign(contrast)
+    expected = np.zeros(count) if contrast is None else contrast
+    if ratio is not None and (isinstance(ratio, bool) or not ratio > 1):
+        raise ValueError(f"ratio must be a number > 1 or None, got {ratio!r}")
     keep = np.ones(count, bool)
     if mask is not None:
         mask = np.asarray(mask)
@@ -186,13 +193,20 @@ def moving_edges(
     profile = values.reshape(count, len(m), len(tau)).mean(axis=2, dtype=np.float64)
     d = np.diff(profile, axis=1)  # (S, 2k + 1) at offsets -k..k
     score = np.where(sign[:, None] == 0, np.abs(d), d * sign[:, None])
+    allowed = score >= threshold
+    if ratio is not None:  # the expected contrast's size, within a factor `ratio`
+        size = np.abs(expected)[:, None]
+        allowed &= (size == 0) | ((score >= size / ratio) & (score <= size * ratio))
     if choose == "nearest":
         padded = np.pad(score, ((0, 0), (1, 1)), constant_values=-np.inf)
-        peaks = (score >= padded[:, :-2]) & (score > padded[:, 2:]) & (score >= threshold)
+        peaks = (score >= padded[:, :-2]) & (score > padded[:, 2:]) & allowed
+        peaks[:, [0, 2 * k]] = False
         distance = np.where(peaks, np.abs(np.arange(2 * k + 1) - k), 4 * k)
-        best = np.where(peaks.any(axis=1), np.argmin(distance, axis=1), np.argmax(score, 1))
+        best = np.argmin(distance, axis=1)
+        allowed_best = peaks.any(axis=1)
     else:
-        best = np.argmax(score, axis=1)
+        best = np.argmax(np.where(allowed, score, -np.inf), axis=1)
+        allowed_best = allowed.any(axis=1)
     rows = np.arange(count)
     interior = (best > 0) & (best < 2 * k)
     # Sub-pixel: the parabola through the logarithms of the derivatives of the peak's
@@ -205,7 +219,7 @@ def moving_edges(
     fit = interior & (curve < -1e-12)
     delta = 0.5 * (logs[:, 0] - logs[:, 2]) / np.where(fit, curve, -1.0)
     delta = np.where(fit, np.clip(delta, -0.5, 0.5), 0.0)
-    valid = keep & interior & (score[rows, best] >= threshold)
+    valid = keep & interior & allowed_best
     offset = np.where(valid, best - k + delta, 0.0)
     strength = np.where(valid, d[rows, best], 0.0)
     matched = points + offset[:, None] * n

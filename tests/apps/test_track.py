@@ -8,6 +8,7 @@ import pytest
 
 from jaxpose.apps import (
     TrackOptions,
+    face_textures,
     mesh_geometry,
     noise_texture,
     read_ply,
@@ -82,6 +83,21 @@ def test_tracks_a_rendered_box(look, use_points):
     rotation, translation = _errors(results, Rs, ts)
     assert _on_target(rotation, translation) >= 0.95
     assert np.median(rotation) < 0.2 and np.median(translation) < 0.002
+
+
+def test_box_textured_from_its_photograph():
+    # The photograph's faces (printed borders a few pixels inside the edges, text),
+    # lit by a directional light.
+    photo = cv2.imread(str(sample_path("opencv_pose_box", "resized_IMG_3875.JPG")))
+    K_photo = np.array([[1384.484, 0, 359], [0, 1385.235, 240], [0, 0, 1.0]])
+    R = cv2.Rodrigues(np.array([2.05445, -0.78674, 0.31403]))[0]
+    textures = face_textures(
+        photo, GEO, K_photo, None, R, [-1.0904, 11.6255, 91.0701], texture_scale=0.05
+    )
+    frames, Rs, ts = _sequence(40, noise=2.0, texture=textures, texture_scale=0.05, ambient=0.4)
+    results = list(track(frames, GEO, K, None, (Rs[0], ts[0])))
+    rotation, translation = _errors(results, Rs, ts)
+    assert _on_target(rotation, translation) >= 0.95 and np.median(rotation) < 0.3
 
 
 def test_lighting_change_occluder_and_distortion():

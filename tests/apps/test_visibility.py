@@ -50,6 +50,8 @@ def test_front_faces_and_box_edges():
     samples = edge_samples(BOX, K, None, R, t, spacing=5.0, image_size=SIZE)
     seen = set(samples.edge[samples.visible].tolist())
     assert len(seen) == 9  # three faces: nine distinct edges
+    outline = set(samples.edge[samples.visible & samples.outline].tolist())
+    assert len(outline) == 6  # the hexagon around them; the three creases inside
     # Samples lie on their edges and project where the model does.
     edges = np.asarray(BOX.edges)
     a, b = BOX.vertices[edges[samples.edge, 0]], BOX.vertices[edges[samples.edge, 1]]

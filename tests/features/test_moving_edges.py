@@ -102,6 +102,11 @@ def test_contrast_picks_the_edge_of_the_expected_sign():
     falling = moving_edges(image, points, normals, search=6, contrast=[-1.0, -5.0])
     np.testing.assert_allclose(falling.matched[:, 0], 35.5)
     np.testing.assert_allclose(falling.strength, -40.0)  # a sharp step read bilinearly
+    # The size of the contrast too: a rising edge of 75 per pixel, not of 20.
+    sized = moving_edges(image, points, normals, search=6, contrast=[75.0, 60.0], ratio=1.5)
+    np.testing.assert_allclose(sized.matched[:, 0], 29.5)
+    weak = moving_edges(image, points, normals, search=6, contrast=[20.0, 20.0], ratio=1.5)
+    assert not weak.valid.any()
     # The nearest edge rather than the strongest: from x = 34, the falling one.
     closer = points + [1.0, 0.0]
     strongest = moving_edges(image, closer, normals, search=6)
@@ -147,6 +152,8 @@ def test_bad_arguments():
         moving_edges(image, p, n, contrast=[1.0])
     with pytest.raises(ValueError, match="mask"):
         moving_edges(image, p, n, mask=[1, 0, 1])
+    with pytest.raises(ValueError, match="ratio"):
+        moving_edges(image, p, n, contrast=[1.0, 1.0, 1.0], ratio=0.5)
     with pytest.raises(ValueError, match="choose"):
         moving_edges(image, p, n, choose="best")
     empty = moving_edges(image, np.zeros((0, 2)), np.zeros((0, 2)))
