@@ -75,7 +75,7 @@ from ._jobs import CHUNK
 from ._methods import per_triplet
 from ._mixed import job, mixed_from_initial_batch
 from ._options import Options
-from ._planar import planar_partner
+from ._planar import model_planes, planar_partner_batch
 from ._triplets import (
     area_threshold,
     best_triplet,
@@ -308,24 +308,24 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     accepted = converged_k if mixed else accepts(converged_k, error, thr)
     pose = Pose(mat_to_array(R1), vec_to_array(t1))
 
-    # 5. the planar partner of the answer (its linear run only in a block that has one)
+    # 5. the planar partner of the answer (built and refined only in a block that has a
+    # coplanar model: the test alone costs a few sums per problem)
     if options.planar_partner:
-        partner, flat = jax.vmap(planar_partner)(obs, pose)
+        centre, normal, flat = model_planes(obs.model, obs.mask)
         flat = flat & accepted
 
-        def refine_partner(partner: Pose):
+        def refine_partner(R1: Mat3, t1: Vec3):
+            Rp, tp, finite = planar_partner_batch(obs.camera, R1, t1, centre, normal)
             Rp, tp, other, _, status_p = linear_kernel(
-                Mat3(*(partner.R[..., i, j] for i in range(3) for j in range(3))),
-                Vec3(*(partner.t[..., i] for i in range(3))),
-                m,
-                iterations=options.linear_iterations,
+                Rp, tp, m, iterations=options.linear_iterations
             )
-            return Pose(mat_to_array(Rp), vec_to_array(tp)), other, status_p == Status.OK
+            refined = Pose(mat_to_array(Rp), vec_to_array(tp))
+            return refined, other, finite & (status_p == Status.OK)
 
-        def no_partner(partner: Pose):
-            return partner, jnp.full_like(error, big), jnp.zeros_like(accepted)
+        def no_partner(R1: Mat3, t1: Vec3):
+            return pose, jnp.full_like(error, big), jnp.zeros_like(accepted)
 
-        refined, other, ok = jax.lax.cond(jnp.any(flat), refine_partner, no_partner, partner)
+        refined, other, ok = jax.lax.cond(jnp.any(flat), refine_partner, no_partner, R1, t1)
         better = flat & ok & (other < error)
         pose = Pose(
             jnp.where(better[:, None, None], refined.R, pose.R),

@@ -6,13 +6,33 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..geometry._numerics import masked_centroid
 from ..geometry._pose import Observations, Pose
 from ..geometry._rotation import rotvec_to_matrix
+from ..solvers._components import (
+    Mat3,
+    Vec3,
+    add,
+    cross,
+    dot,
+    matmul,
+    matvec,
+    norm_sq,
+    scale,
+    sub,
+    vec_from_array,
+)
 
-__all__ = ["FLAT_TOL", "camera_centre", "plane_fit", "planar_partner"]
+__all__ = [
+    "FLAT_TOL",
+    "camera_centre",
+    "model_planes",
+    "plane_fit",
+    "planar_partner",
+    "planar_partner_batch",
+]
 
 # Flatness below which a model counts as coplanar (planar partner start): RMS distance to
 # its best-fit plane over its RMS extent along the plane's narrower direction.
@@ -53,6 +73,73 @@ def planar_partner(obs: Observations, pose: Pose) -> tuple[Pose, Array]:
     partner = Pose(Q @ pose.R, Q @ (pose.t - p_c) + p_c)
     ok = flat & jnp.all(jnp.isfinite(partner.R)) & jnp.all(jnp.isfinite(partner.t))
     return jax.tree.map(lambda a, b: jnp.where(ok, a, b), partner, pose), ok
+
+
+def model_planes(
+    model: Float[ArrayLike, "B n 3"], mask: ArrayLike
+) -> tuple[Vec3, Vec3, Bool[Array, " B"]]:
+    """Each model's best-fit plane, batch-first: `(centre, normal, flat)`, the centroid
+    of the used points, the unit normal and whether the model is coplanar within
+    `FLAT_TOL` (`planar_partner`'s test). The scatter matrix is six sums over the points
+    (component form, no 3x3 product per problem), its eigen-decomposition `plane_fit`'s:
+    cheap beside a partner, so that a batch can ask first and build partners only where
+    one exists."""
+    model = jnp.asarray(model)
+    w = jnp.asarray(mask).astype(model.dtype)
+    count = jnp.maximum(jnp.sum(w, axis=-1), 1)
+    x, y, z = (model[..., i] for i in range(3))
+    centre = Vec3(*(jnp.sum(a * w, axis=-1) / count for a in (x, y, z)))
+    dx, dy, dz = ((a - c[:, None]) * w for a, c in zip((x, y, z), centre, strict=True))
+    pairs = ((dx, dx), (dx, dy), (dx, dz), (dy, dy), (dy, dz), (dz, dz))
+    sxx, sxy, sxz, syy, syz, szz = (jnp.sum(a * b, axis=-1) / count for a, b in pairs)
+    S = jnp.stack(
+        [jnp.stack(r, axis=-1) for r in ((sxx, sxy, sxz), (sxy, syy, syz), (sxz, syz, szz))],
+        axis=-2,
+    )
+    smallest, middle, normal = jax.vmap(plane_fit)(S)
+    flat = (smallest <= FLAT_TOL**2 * middle) & (middle > 0) & (jnp.sum(w, axis=-1) >= 4)
+    return centre, vec_from_array(normal), flat
+
+
+def planar_partner_batch(
+    camera: Float[ArrayLike, "B 3 4"], R: Mat3, t: Vec3, centre: Vec3, normal: Vec3
+) -> tuple[Mat3, Vec3, Bool[Array, " B"]]:
+    """`planar_partner` for a batch in component form (`R`, `t` of shape `(B,)` each;
+    `centre`, `normal` from `model_planes`): `(R', t', finite)`. The rotation taking `n`
+    to its mirror about the line of sight `v` turns by twice their angle `theta` about
+    `a = n x v` (`|a| = sin theta`, `n . v = cos theta`), so
+    `Q = (1 - 2 |a|^2) I + 2 cos(theta) [a]x + 2 a a^T`: no trigonometric function and no
+    division by `|a|` (it is the identity when `n` lies along `v`)."""
+    n = matvec(R, normal)
+    p_c = add(matvec(R, centre), t)
+    o = vec_from_array(jax.vmap(camera_centre)(camera))
+    sight = sub(p_c, o)
+    dtype = sight.x.dtype
+    length = jnp.sqrt(norm_sq(sight))
+    v = scale(sight, 1 / jnp.maximum(length, jnp.finfo(dtype).tiny))
+    c = dot(n, v)
+    n = scale(n, jnp.where(c < 0, -1.0, 1.0).astype(dtype))  # angle to v in [0, pi/2]
+    c = jnp.abs(c)
+    a = cross(n, v)
+    s2 = norm_sq(a)
+    diag = 1 - 2 * s2
+    Q = Mat3(
+        diag + 2 * a.x * a.x,
+        2 * a.x * a.y - 2 * c * a.z,
+        2 * a.x * a.z + 2 * c * a.y,
+        2 * a.y * a.x + 2 * c * a.z,
+        diag + 2 * a.y * a.y,
+        2 * a.y * a.z - 2 * c * a.x,
+        2 * a.z * a.x - 2 * c * a.y,
+        2 * a.z * a.y + 2 * c * a.x,
+        diag + 2 * a.z * a.z,
+    )
+    Rp = matmul(Q, R)
+    tp = add(matvec(Q, sub(t, p_c)), p_c)
+    finite = jnp.ones_like(c, dtype=bool)
+    for part in (*Rp, *tp):
+        finite = finite & jnp.isfinite(part)
+    return Rp, tp, finite
 
 
 def camera_centre(camera: Float[ArrayLike, "3 4"]) -> Float[Array, " 3"]:
