@@ -382,8 +382,10 @@ def three_point(
     **Arguments:**
     - `camera`: `C` `(3, 4)`, calibrated in the world frame (any scale or sign).
     - `model`: `(3, 3)` model points; `image`: `(3, 2)` their pixels.
-    - `min_area`: image-triangle area (px^2) below which the points count as aligned
-      (the paper: 40).
+    - `min_area`: image-triangle area below which the points count as aligned, in the
+      image's units squared (default 40 px^2, the paper's; the pipeline passes a
+      scale-free one: `Options.min_area` times the problem's spread,
+      `jaxpose.strategy.area_threshold`).
     - `collinear_tol`: model-triangle area over its longest edge squared below which the
       model points count as collinear (scale-free; an equilateral triangle has 0.43).
     - `approximate`: also return near-real roots: a double root that image noise pushed

@@ -5,70 +5,11 @@ import cv2
 import numpy as np
 
 import jaxpose as jp
+from benchmarks.opencv_cases import compare_with_ippe, planar_case
 
 #: Planar problems compared with IPPE (`benchmarks/opencv_cases.py` runs 1,000; 200
 #: here, about 2.5 minutes on a 2-core CPU).
 PLANAR_PROBLEMS = 200
-
-
-def _refined_ippe(obj, img, K, dist):
-    """IPPE's two poses, each refined to its local minimum of the reprojection error:
-    by `solve_pnp` from it (`use_extrinsic_guess`, checked against OpenCV's own
-    refinement in `test_initial.py`; `cv2.solvePnPRefineLM`'s 20 iterations stop short
-    in the flat valleys of the planar ambiguity, up to 0.2 rad from the bottom, measured).
-    Each is at an error no higher than `cv2.solvePnPRefineLM`'s from the same start."""
-    n, rs, ts, _ = cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
-    out = []
-    for r, t in zip(rs, ts, strict=True):
-        r_cv, t_cv = cv2.solvePnPRefineLM(obj, img, K, dist, r.copy(), t.copy())
-        ok, r, t = jp.solve_pnp(obj, img, K, dist, r, t, True)
-        if not ok:  # no minimum reached from it (a flat valley: see `solve_pnp_generic`)
-            continue
-        assert _error(obj, img, K, dist, r, t) <= _error(obj, img, K, dist, r_cv, t_cv) * (1 + 1e-9)
-        out.append((r, t))
-    return out
-
-
-def _error(obj, img, K, dist, r, t):
-    proj = cv2.projectPoints(obj, r, t, K, dist)[0].reshape(-1, 2)
-    return np.linalg.norm(proj - img) / np.sqrt(2 * len(obj))
-
-
-def _matches(ours, theirs, obj, img, K, dist):
-    """One local minimum: the same pose (to the solvers' tolerance) and error."""
-    (r, t), (rc, tc) = ours, theirs
-    close = np.abs(r - rc).max() < 1e-5 and np.abs(t - tc).max() < 1e-5 * np.abs(tc).max()
-    e, ec = _error(obj, img, K, dist, r, t), _error(obj, img, K, dist, rc, tc)
-    return close and abs(e - ec) <= 1e-9 * ec
-
-
-def planar_case(rng, dist=None):
-    n = int(rng.integers(4, 12))
-    obj = np.c_[rng.uniform(-1, 1, (n, 2)), np.zeros(n)]
-    K = np.array([[rng.uniform(300, 2000), 0, 320], [0, 0, 240], [0, 0, 1]])
-    K[1, 1] = K[0, 0] * rng.uniform(0.9, 1.1)
-    rvec = rng.normal(0, 0.6, 3)
-    tvec = np.array([*rng.normal(0, 0.5, 2), rng.uniform(4, 15)])
-    img = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
-    return obj, img + rng.normal(0, rng.uniform(0.1, 2.0), img.shape), K
-
-
-def compare_with_ippe(obj, img, K, dist=None):
-    """`(same, count)`: whether jaxpose's minima are IPPE's refined ones (each found in
-    the other), sorted, with OpenCV's errors; and how many jaxpose found."""
-    count, rvecs, tvecs, errs = jp.solve_pnp_generic(obj, img, K, dist)
-    ours = list(zip(rvecs, tvecs, strict=True))
-    theirs = _refined_ippe(obj, img, K, dist)
-    if count == 0:
-        return False, count
-    for (r, t), e in zip(ours, errs[:, 0], strict=True):
-        if not np.isclose(e, _error(obj, img, K, dist, r, t), rtol=1e-9):
-            return False, count
-    if list(errs[:, 0]) != sorted(errs[:, 0]):
-        return False, count
-    found = all(any(_matches(o, c, obj, img, K, dist) for o in ours) for c in theirs)
-    back = all(any(_matches(o, c, obj, img, K, dist) for c in theirs) for o in ours)
-    return found and back, count
 
 
 def test_planar_targets_give_ippe_refined_poses():
