@@ -27,12 +27,35 @@ from jaxpose.strategy._triplets import pose_errors
 N = 30  # padded width
 K = 3  # starts per problem
 
+# Helpers and references as the tests call them, jitted (one program per shape rather
+# than one per eager operation); the checks run in numpy.
+_rotvecs_to_matrices = jax.jit(jax.vmap(rotvec_to_matrix))
+_mat_to_array = jax.jit(mat_to_array)
+
+
+@jax.jit
+def _pixel_errors(R, t, m):
+    """`pixel_error_kernel` of poses given as arrays `(..., 3, 3)`, `(..., 3)`."""
+    return pixel_error_kernel(mat_from_array(R), vec_from_array(t), m)
+
+
+@jax.jit
+def _pose_errors(obs, R, t):
+    return jax.vmap(lambda o, R, t: pose_errors(Pose(R, t), o))(obs, R, t)
+
+
+def _as_dtype(tree, dtype):
+    """The floating leaves of `tree` as numpy arrays of `dtype`."""
+    return jax.tree.map(
+        lambda a: np.asarray(a).astype(dtype) if a.dtype.kind == "f" else np.asarray(a), tree
+    )
+
 
 def _rotations(rng, count, max_angle):
     axis = rng.normal(size=(count, 3))
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     angle = rng.uniform(0, max_angle, size=(count, 1))
-    return np.asarray(jax.vmap(rotvec_to_matrix)(jnp.asarray(axis * angle)))
+    return np.asarray(_rotvecs_to_matrices(axis * angle))
 
 
 def _problems(seed, P, n, *, min_used=4):
@@ -111,31 +134,35 @@ def _check(obs, R, t, *, rtol, atol_t, statuses=True, determined=slice(None)):
     """Kernels against references; the single steps compared on the `determined`
     problems, the methods' results where the reference succeeds."""
     dtype = R.dtype
-    (ref_pose, ref_step), ref_lin, ref_err = _reference(obs, R, t)
-    m = _matches(jax.tree.map(lambda a: a.astype(dtype) if a.dtype.kind == "f" else a, obs))
-    (kR, kt, kstep), (lR, lt, lerr, lstep, lstatus), kerr = _kernels(m, R, t)
+    reference = jax.tree.map(np.asarray, _reference(obs, R, t))
+    (ref_pose, ref_step), ref_lin, ref_err = reference
+    m = _matches(_as_dtype(obs, dtype))
+    kernels = _kernels(m, R, t)
+    (kR, kt, kstep), (lR, lt, lerr, lstep, lstatus), kerr = jax.tree.map(np.asarray, kernels)
     for a in jax.tree.leaves(((kR, kt, kstep), (lR, lt, lerr, lstep, lstatus), kerr)):
-        assert bool(jnp.all(jnp.isfinite(a)))
+        assert bool(np.all(np.isfinite(a)))
+    kR, lR = np.asarray(_mat_to_array(kR)), np.asarray(_mat_to_array(lR))
+    kt = np.stack([kt.x, kt.y, kt.z], axis=-1)  # vec_to_array
     d = determined
-    scale = np.max(np.abs(np.asarray(ref_pose.t)))
-    np.testing.assert_allclose(mat_to_array(kR)[d], ref_pose.R[d], rtol=0, atol=rtol)
-    np.testing.assert_allclose(vec_to_array(kt)[d], ref_pose.t[d], atol=atol_t * scale)
+    scale = np.max(np.abs(ref_pose.t))
+    np.testing.assert_allclose(kR[d], ref_pose.R[d], rtol=0, atol=rtol)
+    np.testing.assert_allclose(kt[d], ref_pose.t[d], atol=atol_t * scale)
     np.testing.assert_allclose(kstep[d], ref_step[d], rtol=rtol, atol=rtol)
     np.testing.assert_allclose(kerr, ref_err, rtol=rtol, atol=0)
-    ok = np.asarray(ref_lin.status) == Status.OK
-    np.testing.assert_allclose(np.asarray(lerr)[ok], np.asarray(ref_lin.error)[ok], rtol=rtol)
-    np.testing.assert_allclose(mat_to_array(lR)[ok], np.asarray(ref_lin.pose.R)[ok], atol=rtol)
+    ok = ref_lin.status == Status.OK
+    np.testing.assert_allclose(lerr[ok], ref_lin.error[ok], rtol=rtol)
+    np.testing.assert_allclose(lR[ok], ref_lin.pose.R[ok], atol=rtol)
     if statuses:
         np.testing.assert_array_equal(lstatus, ref_lin.status)
-    return ref_lin.status, lstatus, ref_pose.R, mat_to_array(kR)
+    return ref_lin.status, lstatus, ref_pose.R, kR
 
 
 @pytest.fixture(scope="module")
 def padded():
     C, M, I, mask, R, t = _problems(1, 40, N)
-    obs = _observations(*map(jnp.asarray, (C, M, I, mask)))
+    obs = _observations(C, M, I, mask)
     Rs, ts = _starts(2, R, t, [0.02, 0.1, 0.5])
-    return obs, jnp.asarray(Rs), jnp.asarray(ts)
+    return obs, Rs, ts
 
 
 def test_float64_padded_problems_several_starts(padded):
@@ -147,26 +174,26 @@ def test_float64_padded_problems_several_starts(padded):
 
 def test_float64_exactly_four_matches():
     C, M, I, mask, R, t = _problems(3, 12, 4, min_used=4)
-    obs = _observations(*map(jnp.asarray, (C, M, I, mask)))
+    obs = _observations(C, M, I, mask)
     Rs, ts = _starts(4, R, t, [0.01, 0.05, 0.3])
-    _check(obs, jnp.asarray(Rs), jnp.asarray(ts), rtol=1e-8, atol_t=1e-8)
+    _check(obs, Rs, ts, rtol=1e-8, atol_t=1e-8)
 
 
 def test_float32_agrees_loosely(padded):
     obs, R, t = padded
-    obs32 = jax.tree.map(lambda a: a.astype(jnp.float32) if a.dtype.kind == "f" else a, obs)
-    R32, t32 = R.astype(jnp.float32), t.astype(jnp.float32)
-    (ref_pose, _), ref_lin, ref_err = _reference(obs, R, t)
+    obs32 = _as_dtype(obs, np.float32)
+    R32, t32 = R.astype(np.float32), t.astype(np.float32)
+    (ref_pose, _), ref_lin, ref_err = jax.tree.map(np.asarray, _reference(obs, R, t))
     m = _matches(obs32)
     (kR, kt, _), (lR, lt, lerr, _, lstatus), kerr = _kernels(m, R32, t32)
     assert kR.xx.dtype == jnp.float32 and lerr.dtype == jnp.float32
     np.testing.assert_allclose(kerr, ref_err, rtol=1e-3)
-    np.testing.assert_allclose(mat_to_array(kR), ref_pose.R, atol=2e-4)
-    ok = np.asarray(ref_lin.status) == Status.OK
+    np.testing.assert_allclose(_mat_to_array(kR), ref_pose.R, atol=2e-4)
+    ok = ref_lin.status == Status.OK
     assert np.mean(np.asarray(lstatus)[ok] == Status.OK) > 0.9
-    np.testing.assert_allclose(mat_to_array(lR)[ok], np.asarray(ref_lin.pose.R)[ok], atol=1e-4)
+    np.testing.assert_allclose(np.asarray(_mat_to_array(lR))[ok], ref_lin.pose.R[ok], atol=1e-4)
     # Eq. 8 error at the fixed point within float32 rounding of the float64 optimum
-    np.testing.assert_allclose(np.asarray(lerr)[ok], np.asarray(ref_lin.error)[ok], rtol=1e-3)
+    np.testing.assert_allclose(np.asarray(lerr)[ok], ref_lin.error[ok], rtol=1e-3)
 
 
 def _degenerate(zero_depth=False):
@@ -191,8 +218,8 @@ def _degenerate(zero_depth=False):
     depth = c3 @ (Rs[4, 0] @ M[4, i] + ts[4, 0]) + C[4, 2, 3]
     target = 0 if zero_depth else -300 * np.linalg.norm(c3)
     M[4, i] -= Rs[4, 0].T @ (c3 * (depth - target) / (c3 @ c3))
-    obs = _observations(*map(jnp.asarray, (C, M, I, mask)))
-    return obs, jnp.asarray(Rs), jnp.asarray(ts)
+    obs = _observations(C, M, I, mask)
+    return obs, Rs, ts
 
 
 def test_degenerate_problems_are_finite_with_the_reference_status():
@@ -220,9 +247,9 @@ def test_pixel_error_with_a_match_at_zero_depth():
     exactly `0`) but finite, in both; its value is the rounding of the depth's
     cancellation, not comparable."""
     obs, R, t = _degenerate(zero_depth=True)
-    err = jax.jit(pixel_error_kernel)(mat_from_array(R), vec_from_array(t), _matches(obs))
-    ref = jax.vmap(lambda o, R, t: pose_errors(Pose(R, t), o))(obs, R, t)
-    assert bool(jnp.all(jnp.isfinite(err)))
+    err = np.asarray(_pixel_errors(R, t, _matches(obs)))
+    ref = np.asarray(_pose_errors(obs, R, t))
+    assert bool(np.all(np.isfinite(err)))
     keep = np.ones(err.shape, dtype=bool)
     keep[4, 0] = False
     np.testing.assert_allclose(err[keep], ref[keep], rtol=1e-9)
@@ -231,11 +258,11 @@ def test_pixel_error_with_a_match_at_zero_depth():
 def test_pixel_errors_of_many_candidates(padded):
     """Poses (P, C) against problems (P, 1): the triplet-scoring shape."""
     obs, R, t = padded
-    R2 = jnp.concatenate([R, jnp.swapaxes(R, -1, -2)], axis=1)  # some far from anything
-    t2 = jnp.concatenate([t, -t], axis=1)
+    R2 = np.concatenate([R, np.swapaxes(R, -1, -2)], axis=1)  # some far from anything
+    t2 = np.concatenate([t, -t], axis=1)
     m = _matches(obs)
-    err = jax.jit(pixel_error_kernel)(mat_from_array(R2), vec_from_array(t2), m)
-    ref = jax.vmap(lambda o, R, t: pose_errors(Pose(R, t), o))(obs, R2, t2)
+    err = _pixel_errors(R2, t2, m)
+    ref = _pose_errors(obs, R2, t2)
     assert err.shape == R2.shape[:2]
     np.testing.assert_allclose(err, ref, rtol=1e-9)
 
@@ -243,19 +270,24 @@ def test_pixel_errors_of_many_candidates(padded):
 def test_in_chunks_matches_one_pass(padded):
     obs, R, t = padded
     m = _matches(obs)
-    Rm, tm = mat_from_array(R), vec_from_array(t)
-    whole = jax.jit(linear_kernel)(Rm, tm, m)
-    chunked = jax.jit(lambda R, t, m: in_chunks(linear_kernel, R, t, m, size=16))(Rm, tm, m)
+
+    def whole(R, t, m):
+        return linear_kernel(mat_from_array(R), vec_from_array(t), m)
+
+    def chunked(R, t, m):
+        return in_chunks(linear_kernel, mat_from_array(R), vec_from_array(t), m, size=16)
+
+    whole, chunked = jax.jit(whole)(R, t, m), jax.jit(chunked)(R, t, m)
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked)):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
 
 
 def test_derivative_of_the_step_matches_the_reference():
     C, M, I, mask, R, t = _problems(8, 2, 6, min_used=6)
-    obs = _observations(*map(jnp.asarray, (C, M, I, mask)))
+    obs = _observations(C, M, I, mask)
     Rs, ts = _starts(9, R, t, [0.05])
-    R0, t0 = jnp.asarray(Rs[:, 0]), jnp.asarray(ts[:, 0])
-    m = matches_from_observations(obs)
+    R0, t0 = jax.device_put(Rs[:, 0]), ts[:, 0]
+    m = jax.jit(matches_from_observations)(obs)
 
     def kernel(t):
         R1, t1, _ = linear_step_kernel(mat_from_array(R0), vec_from_array(t), m)
