@@ -11,7 +11,6 @@ from pathlib import Path
 
 import cv2
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -20,6 +19,11 @@ from jaxpose.strategy._planar import planar_partner
 
 DATA = Path(__file__).parents[1] / "data" / "planar_mixed_reproducers.json"
 ABS_TOL = 1e-6  # px: at the optimum (the benchmark's criterion)
+
+# Jitted: one program per shape rather than one per eager operation.
+_camera_matrix = jax.jit(jp.camera_matrix)
+_observations = jax.jit(jp.observations)
+_planar_partner = jax.jit(planar_partner)
 
 
 @pytest.fixture(scope="module")
@@ -52,12 +56,13 @@ def test_planar_partner_is_an_involution(reproducers):
     """For a coplanar model the partner of the partner is the pose itself, the plane's
     centroid stays put, and its normal is reflected about the line of sight."""
     K, obj, img, _ = reproducers
-    C = jp.camera_matrix(jnp.asarray(K))
-    obs = jp.observations(C, jnp.asarray(obj[0]), jnp.asarray(img[0]))
-    R0 = jnp.asarray(cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))[0])
-    pose = jp.Pose(R0, jnp.array([0.2, -0.1, 6.0]))
-    partner, flat = planar_partner(obs, pose)
-    back, _ = planar_partner(obs, partner)
+    C = _camera_matrix(K)
+    obs = _observations(C, obj[0], img[0])
+    R0 = cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))[0]
+    pose = jp.Pose(R0, np.array([0.2, -0.1, 6.0]))
+    partner, flat = _planar_partner(obs, pose)
+    back, _ = _planar_partner(obs, partner)
+    partner, back = (jax.tree.map(np.asarray, p) for p in (partner, back))
     assert bool(flat)
     assert not np.allclose(partner.R, pose.R, atol=1e-3)
     np.testing.assert_allclose(back.R, pose.R, atol=1e-9)
@@ -69,11 +74,9 @@ def test_planar_partner_is_an_involution(reproducers):
 def test_planar_partner_not_for_a_solid_model(reproducers):
     """A model that is not coplanar gets no partner (the pose comes back unchanged)."""
     bench = jp.default_bench()
-    obs = jp.observations(
-        jnp.asarray(bench.camera), jnp.asarray(bench.model_points), jnp.asarray(bench.image_points)
-    )
-    pose = jp.Pose(jnp.eye(3), jnp.zeros(3))
-    partner, flat = planar_partner(obs, pose)
+    obs = _observations(bench.camera, bench.model_points, bench.image_points)
+    pose = jp.Pose(np.eye(3), np.zeros(3))
+    partner, flat = _planar_partner(obs, pose)
     assert not bool(flat)
     np.testing.assert_array_equal(partner.R, pose.R)
 
@@ -84,7 +87,11 @@ def test_plane_fit_and_camera_centre_match_lapack():
     from jaxpose.strategy._planar import camera_centre, plane_fit
 
     rng = np.random.default_rng(11)
-    fit = jax.jit(plane_fit)
+    jitted_fit, centre = jax.jit(plane_fit), jax.jit(camera_centre)
+
+    def fit(S):
+        return (np.asarray(a) for a in jitted_fit(S))
+
     for i in range(300):
         X = rng.normal(size=(20, 3)) * np.array([1.0, rng.uniform(0.1, 1), rng.uniform(0, 1)])
         if i % 3 == 0:
@@ -97,6 +104,6 @@ def test_plane_fit_and_camera_centre_match_lapack():
         if w[1] - w[0] > 1e-6 * w[2]:
             assert 1 - abs(np.dot(np.asarray(normal), v[:, 0])) < 1e-9
         C = rng.normal(size=(3, 4))
-        np.testing.assert_allclose(C @ np.append(camera_centre(C), 1), 0, atol=1e-12)
+        np.testing.assert_allclose(C @ np.append(centre(C), 1), 0, atol=1e-12)
     smallest, middle, normal = fit(2 * np.eye(3))  # round: any unit normal
     assert smallest == middle == 2 and abs(np.linalg.norm(normal) - 1) < 1e-15
