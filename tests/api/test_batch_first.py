@@ -2,7 +2,6 @@
 the unrolled linear algebra under it."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -10,6 +9,10 @@ from hypothesis import strategies as st
 
 import jaxpose as jp
 from jaxpose.solvers._linalg import cholesky_solve
+
+# Jitted: one program per shape rather than one per eager operation.
+_cholesky_solve = jax.jit(cholesky_solve)
+_rotation_distance = jax.jit(jp.geometry.rotation_distance)
 
 
 @settings(max_examples=40, deadline=None)
@@ -22,7 +25,7 @@ def test_cholesky_solve_matches_numpy_and_stays_finite(seed, n, rank):
     if full:
         M += 1e-3 * np.eye(n)
     b = rng.normal(size=n)
-    x = np.asarray(cholesky_solve(jnp.asarray(M), jnp.asarray(b)))
+    x = np.asarray(_cholesky_solve(M, b))
     assert np.all(np.isfinite(x))
     if full:
         np.testing.assert_allclose(x, np.linalg.solve(M, b), rtol=1e-7, atol=1e-9)
@@ -30,14 +33,18 @@ def test_cholesky_solve_matches_numpy_and_stays_finite(seed, n, rank):
 
 def test_cholesky_solve_rejects_bad_shapes():
     with pytest.raises(ValueError, match="cholesky_solve"):
-        cholesky_solve(jnp.eye(3), jnp.ones(2))
+        cholesky_solve(jax.device_put(np.eye(3)), jax.device_put(np.ones(2)))
 
 
 def test_spread_triplets_takes_the_largest_image_triangles():
     bench = jp.default_bench(seed=0)
-    obs = jp.observations(bench.camera, bench.model_points, bench.image_points)
     candidates = jp.strategy.triplet_indices(len(bench.model_points))
-    rows, chosen = jp.strategy.spread_triplets(obs, candidates, 10)
+
+    @jax.jit
+    def spread(C, M, I):
+        return jp.strategy.spread_triplets(jp.observations(C, M, I), candidates, 10)
+
+    rows, chosen = spread(bench.camera, bench.model_points, bench.image_points)
     uv = np.asarray(bench.image_points)[candidates]
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
@@ -55,12 +62,13 @@ def test_triplet_budget_is_validated(bad):
 def test_solve_many_equals_vmapped_solve():
     rng = np.random.default_rng(7)
     scenes = [jp.apps.random_scene(rng, 8, noise=1.0, world_camera=False) for _ in range(6)]
-    C = jnp.asarray(scenes[0].camera)
-    M = jnp.asarray(np.stack([s.model_points for s in scenes]))
-    I = jnp.asarray(np.stack([s.image_points for s in scenes]))
+    C = scenes[0].camera
+    M = np.stack([s.model_points for s in scenes])
+    I = np.stack([s.image_points for s in scenes])
     # One problem with a match masked out, one with a non-finite pixel.
-    mask = jnp.ones(M.shape[:2], bool).at[1, 3].set(False)
-    I = I.at[2, 0, 0].set(jnp.nan)
+    mask = np.ones(M.shape[:2], bool)
+    mask[1, 3] = False
+    I[2, 0, 0] = np.nan
     # The best roots of `triplet_budget` triplets (`select_triplets`, not the spread
     # matches), values only: a small program to compile. (The fallback, the whole mixed
     # algorithm, is compared batch-first against `vmap(solve)` on hostile input in
@@ -68,16 +76,17 @@ def test_solve_many_equals_vmapped_solve():
     kw = dict(triplet_budget=12, fallback=False, derivative=False)
     many = jax.jit(lambda M, I, m: jp.solve_many(C, M, I, m, **kw))(M, I, mask)
     one = jax.jit(jax.vmap(lambda M, I, m: jp.solve(C, M, I, m, **kw)))(M, I, mask)
-    np.testing.assert_array_equal(np.asarray(many.status), np.asarray(one.status))
-    np.testing.assert_array_equal(np.asarray(many.accepted), np.asarray(one.accepted))
-    np.testing.assert_allclose(np.asarray(many.pose.R), np.asarray(one.pose.R), atol=1e-12)
-    np.testing.assert_allclose(np.asarray(many.pose.t), np.asarray(one.pose.t), atol=1e-9)
+    many, one = jax.tree.map(np.asarray, many), jax.tree.map(np.asarray, one)
+    np.testing.assert_array_equal(many.status, one.status)
+    np.testing.assert_array_equal(many.accepted, one.accepted)
+    np.testing.assert_allclose(many.pose.R, one.pose.R, atol=1e-12)
+    np.testing.assert_allclose(many.pose.t, one.pose.t, atol=1e-9)
     assert not bool(many.accepted[2])
-    assert np.all(np.isfinite(np.asarray(many.pose.R)))
+    assert np.all(np.isfinite(many.pose.R))
     # The accepted poses are the truth up to the noise.
     for b in (0, 1, 3, 4, 5):
         assert bool(many.accepted[b])
-        err = jp.geometry.rotation_distance(many.pose.R[b], jnp.asarray(scenes[b].R))
+        err = _rotation_distance(many.pose.R[b], scenes[b].R)
         assert float(err) < 0.05
 
 
@@ -86,6 +95,6 @@ def test_solve_many_equals_vmapped_solve():
     [((3, 3), "camera must be a 3x4"), ((5, 3, 4), "one per problem"), ((4, 3, 3), "3x4")],
 )
 def test_solve_many_checks_the_camera(camera_shape, match):
-    M, I = jnp.zeros((4, 6, 3)), jnp.zeros((4, 6, 2))
+    M, I = jax.device_put(np.zeros((4, 6, 3))), jax.device_put(np.zeros((4, 6, 2)))
     with pytest.raises(ValueError, match=match):
-        jp.solve_many(jnp.ones(camera_shape), M, I)
+        jp.solve_many(jax.device_put(np.ones(camera_shape)), M, I)
