@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     per_frame = (time.perf_counter() - began) / len(frames)
 
     h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(out / "track_video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+    writer = cv2.VideoWriter(str(out / "track_video.mp4"), cv2.VideoWriter.fourcc(*"mp4v"),
                              30.0, (w, h))  # fmt: skip
     poses = []
     for frame, r in zip(frames, results, strict=True):
