@@ -305,6 +305,30 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
     return samples.points[keep], lines, keys[keep], found.strength[keep]
 
 
+def _check_options(options: TrackOptions) -> None:
+    """ValueError naming the field of `options` that is out of range."""
+    choices = {"choose": ("strongest", "nearest"), "predict": ("velocity", "still"),
+               "edges": ("all", "outline")}  # fmt: skip
+    for field, allowed in choices.items():
+        if getattr(options, field) not in allowed:
+            raise ValueError(f"options.{field} must be one of {allowed}, got "
+                             f"{getattr(options, field)!r}")  # fmt: skip
+    for field in ("search", "refine_search", "rounds", "max_corners", "iterations"):
+        value = getattr(options, field)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"options.{field} must be an int >= 1, got {value!r}")
+    if options.search < 2 or options.refine_search < 2:
+        raise ValueError("options.search and options.refine_search must be >= 2")
+    for field in ("spacing", "threshold", "fb_threshold", "min_scale"):
+        value = getattr(options, field)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+            raise ValueError(f"options.{field} must be a number > 0, got {value!r}")
+    if options.ratio is not None and not options.ratio > 1:
+        raise ValueError(f"options.ratio must be > 1 or None, got {options.ratio!r}")
+    if not 0 < options.grazing <= 90:
+        raise ValueError(f"options.grazing must be in (0, 90], got {options.grazing!r}")
+
+
 @no_type_check
 def track(
     frames: Iterable[np.ndarray],
@@ -336,6 +360,7 @@ def track(
     options = TrackOptions() if options is None else options
     if not isinstance(options, TrackOptions):
         raise ValueError(f"options must be a TrackOptions, got {type(options).__name__}")
+    _check_options(options)
 
     def run() -> Iterator[TrackedFrame]:
         nonlocal R, t

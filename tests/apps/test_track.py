@@ -139,6 +139,12 @@ def test_bad_arguments():
         track([], GEO, K, None, R)
     with pytest.raises(ValueError, match="options"):
         track([], GEO, K, None, (R, t), options={"search": 3})
+    with pytest.raises(ValueError, match="options.predict"):
+        track([], GEO, K, None, (R, t), options=TrackOptions(predict="guess"))
+    with pytest.raises(ValueError, match="options.search"):
+        track([], GEO, K, None, (R, t), options=TrackOptions(search=1))
+    with pytest.raises(ValueError, match="options.ratio"):
+        track([], GEO, K, None, (R, t), options=TrackOptions(ratio=0.5))
     with pytest.raises(ValueError, match="K"):
         track([], GEO, np.eye(4), None, (R, t))
     frames = [np.zeros((48, 64), np.uint8), np.zeros((40, 64), np.uint8)]
