@@ -48,12 +48,13 @@ def solve(
 
     Pure, for ONE problem: composes with `jax.jit`, `jax.vmap` (batch the arrays) and
     `jax.grad`; the pipeline (`jaxpose.strategy.solve_problems`) on a batch of one.
-    By default (the mixed method with `refine=2`): the three-point roots of the triplets
+    By default (the mixed method with `refine=1`): the three-point roots of the triplets
     of the 4 matches farthest apart in the image are scored by their Eq. 8 error over all
-    matches, the linear method runs from the 2 best distinct ones, and the best accepted
-    pose is polished to the Eq. 8 optimum. Where none is accepted the problem escalates
-    (`jaxpose.strategy.escalation`): the best roots of the triplets of 12 spread matches,
-    then the paper's whole mixed algorithm over every triplet (`jaxpose.mixed`).
+    matches, the linear method runs from the best one (and, for a coplanar model, from
+    its planar partner too), and the accepted pose is polished to the Eq. 8 optimum.
+    Where none is accepted the problem escalates (`jaxpose.strategy.escalation`): the
+    best roots of the triplets of 12 spread matches, then the paper's whole mixed
+    algorithm over every triplet (`jaxpose.mixed`).
     `refine=None` runs the whole mixed algorithm from the start; `method=` one of the
     paper's single methods, from every triplet.
 

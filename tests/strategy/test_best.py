@@ -98,7 +98,7 @@ def test_escalation_rungs():
     rung; no ladder without the fallback, for `refine=None` or another method."""
     rungs = escalation(jp.Options())
     assert [(r.spread_points, r.refine, r.refine_with, r.fallback) for r in rungs] == [
-        (4, 2, "linear", False),
+        (4, 1, "linear", False),
         (12, 8, "mixed", False),
         (4, None, "linear", True),
     ]
