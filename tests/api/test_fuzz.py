@@ -232,8 +232,11 @@ def _rotation_inputs(rng, dtype):
             rng.normal(size=(B, 3, 3)),
         ],
     )
-    cast = lambda x: jnp.asarray(x, dtype)
+    cast = lambda x: np.asarray(x, dtype)
     return cast(r), cast(q), cast(p), cast(qv), cast(rpy), cast(M), Rs, angle
+
+
+_quaternions_to_matrices = jax.jit(jax.vmap(jp.geometry.quaternion_to_matrix))
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -258,11 +261,7 @@ def test_rotations(dtype):
     np.testing.assert_allclose(out["angle"], wrapped, rtol=0, atol=4 * np.pi * tol)
     assert np.max(np.abs(out["self_distance"])) < np.sqrt(eps)
 
-    R_ref = lambda q: np.asarray(
-        jax.vmap(jp.geometry.quaternion_to_matrix)(
-            jnp.asarray(q / np.linalg.norm(q, axis=1)[:, None])
-        )
-    )
+    R_ref = lambda q: np.asarray(_quaternions_to_matrices(q / np.linalg.norm(q, axis=1)[:, None]))
     out = jax.tree.map(np.asarray, _quaternion_group(q, p, qv))
     assert _finite(out), [k for k, v in out.items() if not _finite(v)]
     assert np.max(_orthonormality(out["R"])) < tol
@@ -722,6 +721,7 @@ def test_linear_and_nonlinear_non_finite(method, batch):
 # The batch-first path (one camera per problem); `test_vmapped_solve_equals_solve_many`
 # checks `jax.vmap(solve)` against it on the first `VMAP_BATCH` problems.
 _solve = jax.jit(jp.solve_many)
+_is_success = jax.jit(jp.Status.is_success)
 REJECTED_KINDS = ("collinear", "near_collinear", "duplicated", "zero_area", "too_few")
 
 
@@ -733,7 +733,7 @@ def _check_solutions(out, s, dtype):
     """Properties every answer of `solve` has, whatever its input."""
     assert _finite(out.pose, out.error, out.pose_error)
     assert set(np.unique(out.status)) <= VALID_STATUSES
-    assert np.array_equal(out.accepted, np.asarray(jp.Status.is_success(out.status)))
+    assert np.array_equal(out.accepted, np.asarray(_is_success(out.status)))
     assert out.triplet.shape[-1] == 3
     assert np.all((out.triplet >= 0) & (out.triplet < N_POINTS))
     assert np.max(_orthonormality(out.pose.R)) < 1e3 * EPS[dtype]
@@ -744,7 +744,7 @@ def _solved(dtype):
     """`SOLVE_BATCH[dtype]` generated problems through `jaxpose.solve_many` (once)."""
     rng = np.random.default_rng(50 + DTYPES.index(dtype))
     s = scenes(rng, SOLVE_BATCH[dtype])
-    args = [jnp.asarray(s[k], dtype) for k in ("camera", "model", "image")]
+    args = [np.asarray(s[k], dtype) for k in ("camera", "model", "image")]
     out = jax.tree.map(np.asarray, _solve(*args, s["mask"]))
     return s, args, out
 
