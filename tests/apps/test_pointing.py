@@ -20,9 +20,10 @@ from jaxpose.geometry._rotation import rotvec_to_matrix
 BENCH = jp.default_bench()
 FACES = polyhedron_faces(BENCH.model)
 C = np.asarray(BENCH.camera)
-TRUE = jp.Pose(jnp.asarray(BENCH.R), jnp.asarray(BENCH.t))
+TRUE = jp.Pose(jax.device_put(BENCH.R), jax.device_put(BENCH.t))
 
 B = 512  # every batched call is padded to this size: one compilation per dtype
+_camera_centre = jax.jit(jp.geometry.camera_centre)
 
 
 _run = jax.jit(
@@ -44,7 +45,7 @@ def picks(uv, R=None, t=None, S_pose=None, S_px=None):
     S_pose = np.zeros((6, 6)) if S_pose is None else S_pose
     S_px = np.zeros((2, 2)) if S_px is None else S_px
     out = _run(C, FACES, pad(R), pad(t), pad(uv), S_pose, S_px)
-    return jax.tree.map(lambda x: x[:m], out)
+    return jax.tree.map(lambda x: np.asarray(x)[:m], out)
 
 
 def pick_one(uv, pose=None, S_pose=None, S_px=None):
@@ -105,10 +106,10 @@ def test_middle_of_the_object_hits_the_top_face():
     assert int(hit.face) == 0  # the top face
     np.testing.assert_allclose(hit.point, centre, atol=1e-9)
     np.testing.assert_allclose(hit.normal, BENCH.R[:, 2], atol=1e-12)
-    normals = np.asarray(face_normals(FACES, TRUE))
+    normals = np.asarray(jax.jit(face_normals)(FACES, TRUE))
     np.testing.assert_allclose(normals[0], BENCH.R[:, 2], atol=1e-12)
     np.testing.assert_allclose(normals[1], -BENCH.R[:, 2], atol=1e-12)
-    o = np.asarray(jp.geometry.camera_centre(C))
+    o = np.asarray(_camera_centre(C))
     assert float(hit.distance) == pytest.approx(np.linalg.norm(centre - o), rel=1e-12)
 
 
@@ -162,7 +163,7 @@ def test_non_finite_input_gives_status_not_nan():
 
 def test_object_behind_the_camera_is_not_hit():
     # Same ray, object mirrored behind the camera centre: nothing in front.
-    o = np.asarray(jp.geometry.camera_centre(C))
+    o = np.asarray(_camera_centre(C))
     behind = jp.Pose(BENCH.R, 2 * o - BENCH.t)
     assert int(pick_one(_project(C, BENCH.t), behind).status) == PointingStatus.NO_FACE
 
@@ -241,10 +242,11 @@ def test_covariance_matches_monte_carlo():
     S_px = np.array([[0.3, 0.1], [0.1, 0.2]])
     hit = pick_one(uv, None, S_pose, S_px)
     points = []
+    perturbed = jax.jit(jax.vmap(_perturbed, in_axes=(None, None, 0)))
     for _ in range(8):
         deltas = rng.multivariate_normal(np.zeros(6), S_pose, size=B)
         clicks = uv + rng.multivariate_normal(np.zeros(2), S_px, size=B)
-        R, t = jax.vmap(_perturbed, in_axes=(None, None, 0))(BENCH.R, BENCH.t, deltas)
+        R, t = perturbed(BENCH.R, BENCH.t, deltas)
         out = picks(clicks, np.asarray(R), np.asarray(t))
         assert np.all(np.asarray(out.face) == 0)
         points.append(np.asarray(out.point))
@@ -262,7 +264,7 @@ def test_pose_only_covariance_is_along_the_ray():
     hit = pick_one(np.array([445.0, 240.0]), None, A @ A.T)
     w, V = np.linalg.eigh(np.asarray(hit.covariance))
     assert w[1] < 1e-10 * w[2]  # rank one
-    o = np.asarray(jp.geometry.camera_centre(C))
+    o = np.asarray(_camera_centre(C))
     ray = (np.asarray(hit.point) - o) / float(hit.distance)
     assert abs(V[:, 2] @ ray) == pytest.approx(1.0, abs=1e-9)
 
@@ -300,7 +302,7 @@ def test_clicked_point_within_noise_propagated_tolerance():
     """On 24 noisy bench images: click the pixel of a true surface point, intersect with
     the estimated object; the error (along the ray) is within the propagated sigma."""
     estimates = _estimates()
-    o = np.asarray(jp.geometry.camera_centre(C))
+    o = np.asarray(_camera_centre(C))
     for m in (np.array([0.0, 0.0, 10.0]), np.array([60.0, 20.0, 10.0])):  # on the top face
         truth = m @ BENCH.R.T + BENCH.t
         ray = (truth - o) / np.linalg.norm(truth - o)
