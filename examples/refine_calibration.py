@@ -112,6 +112,10 @@ def residuals(camera, rvecs, tvecs, board, corners):
     return jax.vmap(one)(rvecs, tvecs, corners)
 
 
+# The residuals evaluated outside the solver, compiled once (not op by op).
+_residuals = jax.jit(residuals)
+
+
 def rms(res) -> float:
     """RMS reprojection error (px) of residuals `(..., 2)`: the square root of the mean
     squared distance per corner, as `cv2.calibrateCamera` reports it."""
@@ -140,7 +144,7 @@ def initial_poses(camera, board, corners, method: str = "mixed"):
     """Every view's pose `(rvecs, tvecs)` `(V, 3)` by `jaxpose.solve_pnp` (`method`) with
     the camera vector's `K` and distortion."""
     camera, board, corners = _check(camera, board, corners)
-    K = np.asarray(intrinsic_matrix(camera))
+    K = np.asarray(jax.jit(intrinsic_matrix)(camera))
     rvecs, tvecs = [], []
     for seen in corners:
         ok, rvec, tvec = jp.solve_pnp(board, seen, K, camera[4:], method=method)
@@ -193,7 +197,7 @@ def refine(camera, rvecs, tvecs, board, corners, *, max_steps: int = 500) -> Cal
         if solution.result != optx.RESULTS.successful:
             raise ValueError(f"refinement did not converge: {solution.result}")
         y = np.asarray(solution.value)
-        res = _stacked(jnp.asarray(y), args)
+        res = jax.jit(_stacked)(y, args)
         steps = int(solution.stats["num_steps"])
     if not np.all(np.isfinite(y)):
         raise ValueError("refinement produced non-finite parameters")
@@ -221,7 +225,7 @@ def opencv_calibration(board, corners) -> Calibration:
     tvecs = np.array([t.ravel() for t in tv])
     camera = camera_vector(K, dist.ravel()[:5])
     with jax.enable_x64(True):
-        res = residuals(*(jnp.asarray(a) for a in (camera, rvecs, tvecs, board, corners)))
+        res = _residuals(camera, rvecs, tvecs, board, corners)
     return Calibration(camera, rvecs, tvecs, rms(res), -1)
 
 
@@ -245,7 +249,7 @@ def run(numbers=IMAGES, focal_error: float = 0.03, method: str = "mixed"):
     camera0 = wrong_start(focal_error)
     rvecs0, tvecs0 = initial_poses(camera0, board, corners, method)
     with jax.enable_x64(True):
-        res0 = residuals(*(jnp.asarray(a) for a in (camera0, rvecs0, tvecs0, board, corners)))
+        res0 = _residuals(camera0, rvecs0, tvecs0, board, corners)
     start = Calibration(camera0, rvecs0, tvecs0, rms(res0), 0)
     ours = refine(camera0, rvecs0, tvecs0, board, corners)
     return found, start, ours, opencv_calibration(board, corners)
