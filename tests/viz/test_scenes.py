@@ -4,6 +4,7 @@ determinism and argument checks."""
 from __future__ import annotations
 
 import cv2
+import jax
 import numpy as np
 import pytest
 
@@ -11,6 +12,8 @@ import jaxpose as jp
 from jaxpose.viz import RenderedScene, rendered_scene
 
 DATABASE = jp.apps.model_database()
+# Compiled once per vertex count, not op by op.
+_project_with_depth = jax.jit(jp.geometry.project_with_depth)
 
 
 @pytest.mark.parametrize("name", list(DATABASE))
@@ -23,9 +26,7 @@ def test_model_in_frame_at_true_pose(name):
     assert scene.R is not None and scene.t is not None
     np.testing.assert_allclose(scene.R @ scene.R.T, np.eye(3), atol=1e-12)
     # The pixels are the camera's projections of the posed vertices.
-    pixels, depth = jp.geometry.project_with_depth(
-        scene.camera, model.vertices @ scene.R.T + scene.t
-    )
+    pixels, depth = _project_with_depth(scene.camera, model.vertices @ scene.R.T + scene.t)
     np.testing.assert_allclose(scene.pixels, np.asarray(pixels), atol=1e-6)
     assert np.all(np.asarray(depth) > 0)
     lo, hi = scene.pixels.min(axis=0), scene.pixels.max(axis=0)
