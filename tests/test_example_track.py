@@ -17,7 +17,10 @@ def test_tracks_the_first_frames(tmp_path):
     spec = importlib.util.spec_from_file_location("track_video", PATH)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    assert module.main(["--frames", "12", "--out", str(tmp_path)]) == 0
+    figure = tmp_path / "figure.jpg"
+    args = ["--frames", "12", "--out", str(tmp_path), "--compare", "11", "--figure", str(figure)]
+    assert module.main(args) == 0
+    assert cv2.imread(str(figure)).shape == (480, 640, 3)
     saved = json.loads((tmp_path / "track_video.json").read_text())
     frames = saved["frames"]
     assert len(frames) == 12 and all(f["ok"] for f in frames)
