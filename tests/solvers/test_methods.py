@@ -10,11 +10,19 @@ from helpers import central_difference_jacobian, opencv_optimum, rms_px
 
 import jaxpose as jp
 
+# The helpers the tests call outside the solvers, jitted: one program per shape rather
+# than one per eager operation.
+_rotvec_to_matrix = jax.jit(jp.rotvec_to_matrix)
+_matrix_to_rotvec = jax.jit(jp.matrix_to_rotvec)
+_matrix_to_quaternion = jax.jit(jp.geometry.matrix_to_quaternion)
+_camera_centre = jax.jit(jp.geometry.camera_centre)
+_observations = jax.jit(jp.observations)
+
 
 def _perturbed(R, t, rng, angle_deg, rel_shift, depth):
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
-    dR = np.asarray(jp.rotvec_to_matrix(np.radians(angle_deg) * axis))
+    dR = np.asarray(_rotvec_to_matrix(np.radians(angle_deg) * axis))
     return dR @ R, t + rel_shift * depth * rng.normal(size=3) / np.sqrt(3)
 
 
@@ -63,11 +71,11 @@ def test_linear_and_nonlinear_reach_the_opencv_optimum():
         R, t = opencv_optimum(s)
         refs.append((R, t))
         world = s.model_points @ s.R.T + s.t
-        depth = np.linalg.norm(world.mean(0) - np.asarray(jp.geometry.camera_centre(s.camera)))
+        depth = np.linalg.norm(world.mean(0) - np.asarray(_camera_centre(s.camera)))
         starts.append(_perturbed(s.R, s.t, rng, 4.0, 0.03, depth))
     R0 = np.stack([r for r, _ in starts])
     t0 = np.stack([t for _, t in starts])
-    lin3, lin, raw, nl = _run_both(C, M, I, mask, R0, t0)
+    lin3, lin, raw, nl = jax.tree.map(np.asarray, _run_both(C, M, I, mask, R0, t0))
     for b, s in enumerate(scenes):
         R_ref, t_ref = refs[b]
         e_ref = rms_px(s.camera, R_ref, t_ref, s.model_points, s.image_points)
@@ -90,7 +98,7 @@ def test_linear_and_nonlinear_reach_the_opencv_optimum():
 
 def test_linear_reports_non_convergence_from_a_bad_start():
     b = jp.default_bench()
-    obs = jp.observations(b.camera, b.model_points, b.image_points)
+    obs = _observations(b.camera, b.model_points, b.image_points)
     rng = np.random.default_rng(0)
     R_ref, t_ref = opencv_optimum(b)
     e_ref = rms_px(b.camera, R_ref, t_ref, b.model_points, b.image_points)
@@ -110,7 +118,7 @@ def test_methods_on_too_few_points_and_degenerate_data():
     b = jp.default_bench()
     mask = np.zeros(16, dtype=bool)
     mask[:2] = True
-    obs = jp.observations(b.camera, b.model_points, b.image_points, mask)
+    obs = _observations(b.camera, b.model_points, b.image_points, mask)
     # compiled (op by op, each of the solvers' operations would be compiled on its own)
     linear, nonlinear = jax.jit(jp.solvers.linear), jax.jit(jp.solvers.nonlinear)
     lin = linear(obs, jp.Pose(b.R, b.t))
@@ -120,8 +128,8 @@ def test_methods_on_too_few_points_and_degenerate_data():
     for leaf in jax.tree.leaves((lin, nl)):
         assert np.all(np.isfinite(leaf))
     # all points behind the camera
-    obs = jp.observations(b.camera, b.model_points, b.image_points)
-    centre = np.asarray(jp.geometry.camera_centre(b.camera))
+    obs = _observations(b.camera, b.model_points, b.image_points)
+    centre = np.asarray(_camera_centre(b.camera))
     behind = jp.Pose(b.R, 2 * centre - b.t)
     lin = jax.jit(functools.partial(jp.solvers.linear, iterations=1))(obs, behind)
     assert int(lin.status) != jp.Status.OK
@@ -130,12 +138,12 @@ def test_methods_on_too_few_points_and_degenerate_data():
 
 def test_float32_methods():
     b = jp.default_bench()
-    obs = jp.observations(
-        *(jnp.asarray(x, jnp.float32) for x in (b.camera, b.model_points, b.image_points))
+    obs = _observations(
+        *(np.asarray(x, np.float32) for x in (b.camera, b.model_points, b.image_points))
     )
     rng = np.random.default_rng(2)
     R0, t0 = _perturbed(b.R, b.t, rng, 3.0, 0.02, 2000.0)
-    start = jp.Pose(jnp.asarray(R0, jnp.float32), jnp.asarray(t0, jnp.float32))
+    start = jp.Pose(np.asarray(R0, np.float32), np.asarray(t0, np.float32))
     lin = jax.jit(jp.solvers.linear)(obs, start)
     nl = jax.jit(jp.solvers.nonlinear)(obs, start)
     R_ref, t_ref = opencv_optimum(b)
@@ -152,20 +160,21 @@ def test_float32_methods():
 def test_residual_jacobians_match_central_differences(residual):
     rng = np.random.default_rng(4)
     s = jp.apps.random_scene(rng, 8, noise=0.5)
-    obs = jp.observations(s.camera, s.model_points, s.image_points)
+    obs = _observations(s.camera, s.model_points, s.image_points)
     if residual == "rotvec":
         f, x = (
             jp.solvers.rotvec_residual,
-            np.concatenate([np.asarray(jp.matrix_to_rotvec(s.R)), s.t]),
+            np.concatenate([np.asarray(_matrix_to_rotvec(s.R)), s.t]),
         )
     elif residual == "quaternion":
-        q = np.asarray(jp.geometry.matrix_to_quaternion(s.R))
+        q = np.asarray(_matrix_to_quaternion(s.R))
         f, x = jp.solvers.quaternion_residual, np.concatenate([q[1:] * np.sign(q[0]), s.t])
     else:
-        f, x = jp.solvers.ray_residual, np.concatenate([np.asarray(jp.matrix_to_rotvec(s.R)), s.t])
+        f, x = jp.solvers.ray_residual, np.concatenate([np.asarray(_matrix_to_rotvec(s.R)), s.t])
     x = x + 1e-3 * rng.normal(size=6)
-    fwd = np.asarray(jax.jacfwd(f)(x, obs))
-    rev = np.asarray(jax.jacrev(f)(x, obs))
+    fwd = np.asarray(jax.jit(jax.jacfwd(f))(x, obs))
+    rev = np.asarray(jax.jit(jax.jacrev(f))(x, obs))
+    f = jax.jit(f)
     fd = central_difference_jacobian(lambda y: f(y, obs), x, h=1e-6)
     np.testing.assert_allclose(fwd, rev, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(fwd, fd, rtol=1e-6, atol=1e-6 * np.abs(fd).max())
@@ -180,10 +189,16 @@ def test_compact_residual_has_the_residuals_derivatives():
 
     rng = np.random.default_rng(9)
     s = jp.apps.random_scene(rng, 8, noise=0.5)
-    obs = jp.observations(s.camera, s.model_points, s.image_points)
-    init = jp.geometry.Pose(jnp.asarray(s.R), jnp.asarray(s.t))
-    base = jp.geometry.transform(init, obs.model)
-    args = (obs, chart_at(init, obs, base), base)
+    obs = _observations(s.camera, s.model_points, s.image_points)
+    init = jp.geometry.Pose(s.R, s.t)
+
+    @jax.jit
+    def chart_and_base(obs, init):
+        base = jp.geometry.transform(init, obs.model)
+        return chart_at(init, obs, base), base
+
+    chart, base = chart_and_base(obs, init)
+    args = (obs, chart, base)
 
     @jax.jit
     def derivatives(y, image, y_dot, image_dot):
@@ -199,8 +214,8 @@ def test_compact_residual_has_the_residuals_derivatives():
             )
         return out
 
-    y, y_dot = (jnp.asarray(x * rng.normal(size=6)) for x in (1e-2, 1.0))
-    image_dot = jnp.asarray(rng.normal(size=obs.image.shape))
+    y, y_dot = (x * rng.normal(size=6) for x in (1e-2, 1.0))
+    image_dot = rng.normal(size=obs.image.shape)
     got, want = derivatives(y, obs.image, y_dot, image_dot)
     for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
@@ -208,9 +223,17 @@ def test_compact_residual_has_the_residuals_derivatives():
 
 def test_residuals_vanish_at_the_true_pose():
     b = jp.default_bench(noise=0.0)
-    obs = jp.observations(b.camera, b.model_points, b.image_points)
-    r = np.asarray(jp.matrix_to_rotvec(b.R))
-    q = np.asarray(jp.geometry.matrix_to_quaternion(b.R))
-    assert np.abs(jp.solvers.rotvec_residual(np.concatenate([r, b.t]), obs)).max() < 1e-8
-    assert np.abs(jp.solvers.quaternion_residual(np.concatenate([q[1:], b.t]), obs)).max() < 1e-8
-    assert np.abs(jp.solvers.ray_residual(np.concatenate([r, b.t]), obs)).max() < 1e-5
+    obs = _observations(b.camera, b.model_points, b.image_points)
+    r = np.asarray(_matrix_to_rotvec(b.R))
+    q = np.asarray(_matrix_to_quaternion(b.R))
+    rotvec, quaternion, ray = (
+        jax.jit(f)
+        for f in (
+            jp.solvers.rotvec_residual,
+            jp.solvers.quaternion_residual,
+            jp.solvers.ray_residual,
+        )
+    )
+    assert np.abs(rotvec(np.concatenate([r, b.t]), obs)).max() < 1e-8
+    assert np.abs(quaternion(np.concatenate([q[1:], b.t]), obs)).max() < 1e-8
+    assert np.abs(ray(np.concatenate([r, b.t]), obs)).max() < 1e-5
