@@ -1,6 +1,8 @@
 """Layer 6, applications: the paper's bench and experiment, model database, recognition
 hypothesis verification, recognition without correspondences and from keypoints,
-click-to-3D pointing, the robot, camera calibration, mesh files.
+click-to-3D pointing, the robot, camera calibration, mesh files (PLY, OBJ, ViSP's .cao);
+tracking through video (what a camera sees of a model, rays cast onto it, a software
+renderer for ground-truth sequences, the tracker).
 """
 
 from ._bench import Bench as Bench

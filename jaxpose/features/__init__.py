@@ -1,8 +1,9 @@
 """Layer 5, image features: from a photograph to what the pose methods take. Line
 segments and their junctions (the paper's vertices) for polyhedral models; keypoints
 matched against a textured model for textured objects; the files that describe models
-and cameras (PLY meshes, OpenCV's textured-model and camera YAML). Plain numpy and
-OpenCV: nothing here is traced.
+and cameras (PLY meshes, OpenCV's textured-model and camera YAML); for tracking, frame
+sources (video, folder, camera), moving edges and KLT points. Plain numpy and OpenCV:
+nothing here is traced.
 """
 
 from ._files import read_camera as read_camera
