@@ -393,6 +393,7 @@ def led_joint_grid(
 
 
 _fk_batch = jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0)))
+_project_with_depth = jax.jit(project_with_depth)
 
 
 def simulate_led_pairs(
@@ -437,7 +438,7 @@ def simulate_led_pairs(
     with jax.enable_x64(True):
         points = np.asarray(_fk_batch(r, q).tip, np.float64)
         real = points + rng.normal(scale=position_noise, size=points.shape)
-        uv, depth = project_with_depth(jnp.asarray(C), jnp.asarray(real))
+        uv, depth = _project_with_depth(C, real)
         uv, depth = np.asarray(uv, np.float64), np.asarray(depth, np.float64)
     visible = depth > 0
     if image_size is not None:
@@ -480,8 +481,6 @@ def calibrate_with_robot(
         image_size=image_size,
     )
     with jax.enable_x64(True):
-        cal = _calibrate_jit(
-            jnp.asarray(pairs.points), jnp.asarray(pairs.pixels), jnp.asarray(pairs.visible)
-        )
+        cal = _calibrate_jit(pairs.points, pairs.pixels, pairs.visible)
         cal = Calibration(*(np.asarray(x) for x in cal))
     return cal, pairs

@@ -23,6 +23,7 @@ from jaxpose.apps._calibration import (
 from jaxpose.apps._robot import default_robot, forward_kinematics
 
 BENCH = jp.default_bench()
+_decompose_camera = jax.jit(jp.geometry.decompose_camera)
 ROBOT = default_robot()
 N = len(led_joint_grid(ROBOT))  # pairs per problem (108): the robot grid's size
 
@@ -89,7 +90,7 @@ def test_calibrate_noise_free_from_the_robot():
     Cn = normalised(BENCH.camera)
     np.testing.assert_allclose(out.camera, Cn, atol=1e-8 * np.abs(Cn).max())
     assert float(out.error) < 1e-8
-    K, R, t, centre = (np.asarray(x) for x in jp.geometry.decompose_camera(out.camera))
+    K, R, t, centre = (np.asarray(x) for x in _decompose_camera(out.camera))
     np.testing.assert_allclose(K, BENCH.K, rtol=1e-8, atol=1e-6)
     np.testing.assert_allclose(centre, [0.0, -1550.0, 1250.0], atol=1e-6)
 
@@ -227,7 +228,7 @@ def test_agrees_with_opencv_on_the_robot_pairs(seed):
     assert abs(e_ours - e_cv) < 0.1  # the two predict alike (a fifth of the noise)
     # Decomposition: ours against OpenCV's decomposition of the same matrix.
     K_cv, R_cv, c_cv, *_ = cv2.decomposeProjectionMatrix(np.asarray(ours.camera))
-    K, Rw, _, centre = (np.asarray(x) for x in jp.geometry.decompose_camera(ours.camera))
+    K, Rw, _, centre = (np.asarray(x) for x in _decompose_camera(ours.camera))
     np.testing.assert_allclose(K, K_cv / K_cv[2, 2], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(Rw, R_cv, atol=1e-9)
     np.testing.assert_allclose(centre, (c_cv[:3] / c_cv[3]).ravel(), atol=1e-6)
@@ -240,7 +241,8 @@ def test_agrees_with_opencv_on_the_robot_pairs(seed):
 def test_led_pairs_are_forward_kinematics():
     q = led_joint_grid(ROBOT)
     pairs = simulate_led_pairs(ROBOT, BENCH.camera, q, noise=0.0, image_size=BENCH.image_size)
-    tips = np.stack([np.asarray(forward_kinematics(ROBOT, qi).tip) for qi in q[:5]])
+    fk = jax.jit(forward_kinematics)
+    tips = np.stack([np.asarray(fk(ROBOT, qi).tip) for qi in q[:5]])
     np.testing.assert_allclose(pairs.points[:5], tips, atol=1e-12)
     uv = project(BENCH.camera, pairs.points)
     np.testing.assert_allclose(pairs.pixels, uv, atol=1e-9)
@@ -266,7 +268,7 @@ def test_vmap_over_problems_and_float32():
     assert np.all(np.asarray(out.status) == CalibrationStatus.OK)
     for k in range(2):
         single = calibrate_jit(Xs[k], Us[k], np.ones(N, bool))
-        np.testing.assert_allclose(out.camera[k], single.camera, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(out.camera)[k], single.camera, rtol=1e-6, atol=1e-9)
     # float32: the DLT (Hartley-normalised) stays accurate.
     X, U, C = Xs[0], project(Cs[0], Xs[0]), Cs[0]
     out32 = dlt_jit(X.astype(np.float32), U.astype(np.float32), np.ones(N, bool))
