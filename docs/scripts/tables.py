@@ -37,6 +37,7 @@ from tables_accuracy import (  # noqa: E402
     robust_random,
 )
 from tables_format import Missing, table  # noqa: E402
+from tables_opencv import opencv_cases  # noqa: E402
 from tables_speed import (  # noqa: E402
     costs,
     device,
@@ -193,6 +194,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "robust_bench": robust_bench,
     "robust_random": robust_random,
     "gradients": gradients,
+    "opencv_cases": opencv_cases,
     "statuses": statuses,
     "paper_table1": paper_table1,
 }

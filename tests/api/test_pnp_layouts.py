@@ -46,7 +46,8 @@ def test_every_layout_gives_the_same_pose():
         np.testing.assert_allclose(r, r0, atol=tol, err_msg=a)
         np.testing.assert_allclose(t, t0, atol=tol, err_msg=a)
         ok, r, t, inl = jp.solve_pnp_ransac(o, i, K)
-        assert ok and r.shape == (3, 1) and inl.shape == (8, 1) and inl.dtype == np.int32
+        assert ok and inl is not None and r.shape == (3, 1)
+        assert inl.shape == (8, 1) and inl.dtype == np.int32
         np.testing.assert_allclose(r, r0, atol=tol, err_msg=a)
 
 
@@ -87,7 +88,7 @@ def test_ransac_refits_on_the_inliers_and_repeats_with_a_seed():
     bad = rng.choice(n, 6, replace=False)
     img[bad] += rng.uniform(40, 80, (6, 2))
     ok, r, t, inl = jp.solve_pnp_ransac(obj, img, K, seed=3)
-    assert ok and set(bad).isdisjoint(inl.ravel())
+    assert ok and inl is not None and set(bad).isdisjoint(inl.ravel())
     # the pose is the least-squares fit on the inliers (OpenCV's refinement of them), to
     # the linear method's few steps; a three-point pose from 0.5 px noise is ~1e-2 off
     idx = inl.ravel()

@@ -38,7 +38,7 @@ def test_same_pose_at_every_focal_length_and_in_normalised_coordinates(n, planar
             poses.append(np.concatenate([r.ravel(), t.ravel()]))
             ok, r, t, inl = jp.solve_pnp_ransac(obj, img, K, reprojection_error=1e-3 * K[0, 0])
             if n > 4:  # with 4 matches, three-point poses that fit all four can differ
-                assert ok and len(inl) == n, K[0, 0]
+                assert ok and inl is not None and len(inl) == n, K[0, 0]
         poses = np.array(poses)
         np.testing.assert_allclose(poses, poses[:1].repeat(len(poses), 0), atol=1e-6)
         if n > 4 or not planar:
@@ -55,7 +55,7 @@ def test_the_normalised_coordinates_example():
     np.testing.assert_allclose(r.ravel(), rvec, atol=1e-9)
     np.testing.assert_allclose(t.ravel(), tvec, atol=1e-9)
     ok, r, t, inl = jp.solve_pnp_ransac(obj, img, np.eye(3), None)
-    assert ok and len(inl) == 6
+    assert ok and inl is not None and len(inl) == 6
     np.testing.assert_allclose(r.ravel(), rvec, atol=1e-9)
 
 
