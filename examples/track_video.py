@@ -67,7 +67,7 @@ def main(argv=None) -> int:
         seen = jp.apps.edge_samples(mesh, K, dist, r.R, r.t, spacing=2.0, image_size=(w, h))
         picture = frame.copy()
         for x, y in np.round(seen.pixels[seen.visible]).astype(int):
-            cv2.circle(picture, (int(x), int(y)), 1, (0, 0, 255), -1)
+            cv2.circle(picture, (int(x), int(y)), 1, (255, 255, 0), -1)  # cyan
         writer.write(picture)
         if r.frame in (0, 100, 300, 450):
             drawn[r.frame] = picture
