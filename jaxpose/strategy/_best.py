@@ -282,12 +282,35 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     score = pixel_error_kernel(R, t, lifted)
     score = jnp.where(valid & jnp.isfinite(score), score, big)
 
-    # 3. the linear method from the best distinct few
+    # 3. the linear method from the best distinct few (a coplanar model: at least two,
+    # its two attitudes; their second run only in a block that has one)
     K = refine_count(options, score.shape[1])
-    pick, started = distinct_best(score, R, K)
+    plane = model_planes(obs.model, obs.mask) if options.planar_partner else None
+    two = plane is not None and K == 1 and score.shape[1] > 1
+    pick, started = distinct_best(score, R, 2 if two else K)
     picked = take_along([*R, *t], pick, axis=1)
     R0, t0 = Mat3(*picked[:9]), Vec3(*picked[9:])
-    R1, t1, lin_error, lin_status = _linear_starts(R0, t0, m, options.linear_iterations)
+    its = options.linear_iterations
+    if two:
+        assert plane is not None
+        flat_model = plane[2]
+        started = jnp.stack([started[:, 0], started[:, 1] & flat_model], axis=1)
+
+        def first_only(R0: Mat3, t0: Vec3):
+            column = _linear_starts(
+                Mat3(*(a[:, :1] for a in R0)), Vec3(*(a[:, :1] for a in t0)), m, its
+            )
+            return jax.tree.map(lambda a: jnp.concatenate([a, a], axis=1), column)
+
+        R1, t1, lin_error, lin_status = jax.lax.cond(
+            jnp.any(flat_model),
+            lambda R0, t0: _linear_starts(R0, t0, m, its),
+            first_only,
+            R0,
+            t0,
+        )
+    else:
+        R1, t1, lin_error, lin_status = _linear_starts(R0, t0, m, its)
     converged = started & (lin_status == Status.OK)
     error = jnp.where(converged, lin_error, big)
 
@@ -310,8 +333,8 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
 
     # 5. the planar partner of the answer (built and refined only in a block that has a
     # coplanar model: the test alone costs a few sums per problem)
-    if options.planar_partner:
-        centre, normal, flat = model_planes(obs.model, obs.mask)
+    if plane is not None:
+        centre, normal, flat = plane
         flat = flat & accepted
 
         def refine_partner(R1: Mat3, t1: Vec3):

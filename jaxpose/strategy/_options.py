@@ -151,9 +151,10 @@ class Options:
     - `refine`: how the `solve*` entry points find the answer with the mixed method: the
       linear method from this many of the best-scored roots of all triplets, the whole
       mixed algorithm only for a problem where none of them is accepted
-      (`jaxpose.strategy.best_of_roots`; default `1`: the best-scored root alone, its
-      planar partner too for a coplanar model; a problem it leaves escalates, see
-      `fallback`); `None`: the whole mixed algorithm over every triplet for every problem.
+      (`jaxpose.strategy.best_of_roots`; default `1`: the best-scored root alone; for a
+      coplanar model the two best, and the planar partner of the answer, its two
+      attitudes; a problem they leave escalates, see `fallback`); `None`: the whole
+      mixed algorithm over every triplet for every problem.
     - `refine_with`: how those roots are refined: `"linear"` (default: the linear
       method, accepted as the mixed algorithm's step 2 accepts) or `"mixed"` (the mixed
       algorithm's steps 2-4: Levenberg-Marquardt where the linear method does not reach
