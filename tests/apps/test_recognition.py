@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 
 import cv2
+import jax
 import numpy as np
 import pytest
 from scipy import stats
@@ -15,6 +16,8 @@ from jaxpose import Status
 from jaxpose.apps import Hypothesis
 
 MODELS = jp.apps.model_database()
+# Compiled once (op by op, each of its operations would compile a program of its own).
+_thresholds = jax.jit(jp.apps.acceptance_thresholds, static_argnums=2)
 
 # Closed volumes of the models (mm^3), from their dimensions.
 VOLUMES = {
@@ -129,12 +132,12 @@ def test_model_bench_hides_occluded_vertices(name, elevation):
 
 def test_acceptance_thresholds_match_the_chi2_quantiles():
     for count in (4, 5, 8, 16, 24, 60):
-        error, residual = (float(x) for x in jp.apps.acceptance_thresholds(count, 0.8, 0.999))
+        error, residual = (float(x) for x in _thresholds(count, 0.8, 0.999))
         exact = 0.8 * np.sqrt(stats.chi2.ppf(0.999, 2 * count - 6) / count)
         assert exact <= error <= 1.05 * exact  # Wilson-Hilferty: slightly conservative
         per_match = 0.8 * np.sqrt(stats.chi2.ppf(1 - 0.001 / count, 2))
         assert residual == pytest.approx(per_match, rel=1e-6)
-    assert [float(x) for x in jp.apps.acceptance_thresholds(3, 1.0)] == [0.0, 0.0]
+    assert [float(x) for x in _thresholds(3, 1.0)] == [0.0, 0.0]
 
 
 def test_right_error_passes_the_threshold_at_the_stated_rate():
@@ -142,7 +145,7 @@ def test_right_error_passes_the_threshold_at_the_stated_rate():
     # limit: N e^2 / sigma^2 ~ chi2(2N - 6)): the bound holds with the confidence.
     rng = np.random.default_rng(0)
     count, sigma, conf = 8, 0.8, 0.99
-    bound = float(jp.apps.acceptance_thresholds(count, sigma, conf)[0])
+    bound = float(_thresholds(count, sigma, conf)[0])
     J = rng.normal(size=(2 * count, 6))
     P = np.eye(2 * count) - J @ np.linalg.pinv(J)  # residual projector of a 6-parameter fit
     r = rng.normal(scale=sigma, size=(20000, 2 * count)) @ P.T
