@@ -4,6 +4,7 @@ the renderer's faces where the model is, and argument validation."""
 from __future__ import annotations
 
 import cv2
+import jax
 import numpy as np
 import pytest
 from matplotlib.path import Path as PolygonPath
@@ -156,7 +157,7 @@ def test_render_bench_shows_the_object_where_it_projects():
     top = b.model.faces[0]  # z = +10, the face the camera looks at
     p = world[list(top)]
     assert np.cross(p[1] - p[0], p[2] - p[0]) @ (centre - p[0]) > 0
-    uv = jp.project(b.camera, world[[0, 5, 8]])  # a triangle inside the top face
+    uv = jax.jit(jp.project)(b.camera, world[[0, 5, 8]])  # a triangle inside the top face
     x, y = np.asarray(uv).mean(axis=0).round().astype(int)
     assert not np.array_equal(img[y, x], background)
     # Pixels well outside the projected outline stay background.
