@@ -315,13 +315,18 @@ def image_spread(u: Array, v: Array, mask: Array) -> Array:
     `(...)`). Any affine map of the image (a focal length, a principal point, pixels that
     are not square, `K^-1` itself) multiplies it and every triangle's area by the same
     factor: their ratio is the scale-free measure of alignment of the degeneracy test
-    (`Options.min_area`). Zero when the used points are aligned (or fewer than 3)."""
+    (`Options.min_area`). Never below `sqrt(eps)` times `trace S` (the similarity-invariant
+    spread): used points on one image line (`det S = 0` up to rounding) still have a
+    positive spread, beside which their triangles are flat (an anisotropy of the pixels'
+    scales up to `1 / sqrt(eps)`, 6.7e7 in float64, keeps the affine measure). Zero only
+    for fewer than two distinct used points."""
     w = mask.astype(u.dtype)
     count = jnp.maximum(jnp.sum(w, axis=-1), 1)
     du = jnp.where(mask, u, 0) - (jnp.sum(jnp.where(mask, u, 0), axis=-1) / count)[..., None]
     dv = jnp.where(mask, v, 0) - (jnp.sum(jnp.where(mask, v, 0), axis=-1) / count)[..., None]
     suu, svv, suv = (jnp.sum(w * a * b, axis=-1) / count for a, b in ((du, du), (dv, dv), (du, dv)))
-    return safe_sqrt(jnp.maximum(suu * svv - suv * suv, 0))
+    floor = jnp.sqrt(jnp.finfo(u.dtype).eps) * (suu + svv)
+    return jnp.maximum(safe_sqrt(jnp.maximum(suu * svv - suv * suv, 0)), floor)
 
 
 def degeneracy(
