@@ -34,7 +34,7 @@ def test_as_points_layouts_and_dtypes():
     "bad",
     [
         np.zeros((4, 2)),
-        np.zeros((3, 4)),
+        np.zeros((5, 4)),  # neither (n, 3) nor (3, n)
         np.zeros(3),
         np.zeros((2, 2, 3)),
         np.zeros((4, 1, 2)),
@@ -46,6 +46,14 @@ def test_as_points_layouts_and_dtypes():
 def test_as_points_rejects_shapes(bad):
     with pytest.raises(ValueError, match="object_points"):
         as_points(bad, "object_points", 3)
+
+
+def test_as_points_reads_the_transposed_layout():
+    """`(3, n)` with `n != 3` is one point per column; `(3, 3)` one per row, as cv2."""
+    pts = np.arange(12.0).reshape(4, 3)
+    np.testing.assert_array_equal(as_points(pts.T, "object_points", 3), pts)
+    square = np.arange(9.0).reshape(3, 3)
+    np.testing.assert_array_equal(as_points(square, "object_points", 3), square)
 
 
 def test_as_points_rejects_values():
