@@ -39,6 +39,7 @@ import jax
 import numpy as np
 
 from ..api._programs import stored_jit
+from ..features._raster import _dots
 from ..features._segments import oriented_edge_distance
 from ..geometry._camera import decompose_camera
 from ..geometry._validate import as_camera
@@ -139,13 +140,10 @@ def _image_paths(links: np.ndarray) -> np.ndarray:
 def _vertex_distance(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     import cv2
 
-    H, W = shape
-    mask = np.full((H, W), 255, np.uint8)
-    ij = np.round(points).astype(np.int64)
-    keep = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < W) & (ij[:, 1] < H)
-    mask[ij[keep, 1], ij[keep, 0]] = 0
-    if not keep.any():
-        return np.full((H, W), np.float32(1e6))
+    dots = _dots(points, shape)
+    if not dots.any():
+        return np.full(shape, np.float32(1e6))
+    mask = np.where(dots, 0, 255).astype(np.uint8)
     return cv2.distanceTransform(mask, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 

@@ -334,22 +334,51 @@ def read_ply(
         if key not in r:
             raise ValueError(f"path {str(path)!r}: faces without a vertex_indices list")
         faces.append([int(i) for i in r[key]])
-    if any(len(f) < 3 or min(f) < 0 or max(f) >= len(vertices) for f in faces):
+    stem = path.name.removesuffix(".ply").removesuffix(".PLY")
+    return _assemble(stem if name is None else name, vertices, faces, [], merge=merge,
+                     orient=False, angle_tol=angle_tol, plane_tol=plane_tol, path=path,
+                     drop_flat=merge)  # fmt: skip
+
+
+def _assemble(
+    name: str,
+    vertices: np.ndarray,
+    faces: list[list[int]],
+    lines: list[tuple[int, int]],
+    *,
+    merge: bool,
+    orient: bool,
+    angle_tol: float,
+    plane_tol: float,
+    path: Path,
+    drop_flat: bool = True,
+) -> Polyhedron:
+    """A `Polyhedron` from vertices, faces and extra edges (the one builder of the mesh
+    readers: PLY, OBJ, CAO): indices checked, faces of no area dropped (`drop_flat`),
+    merged into polygons (`merge`) or only oriented (`orient`), edges the faces' sides
+    and `lines`."""
+    if len(vertices) == 0:
+        raise ValueError(f"path {str(path)!r}: no vertices")
+    if not np.all(np.isfinite(vertices)):
+        raise ValueError(f"path {str(path)!r}: vertices contain NaN or infinite values")
+    count = len(vertices)
+    if any(len(f) < 3 or min(f) < 0 or max(f) >= count for f in faces):
         raise ValueError(f"path {str(path)!r}: a face has under 3 vertices or a bad index")
-    if merge and faces:
-        area = [np.linalg.norm(_vector_area(vertices[f])) for f in faces]
+    if any(min(a, b) < 0 or max(a, b) >= count for a, b in lines):
+        raise ValueError(f"path {str(path)!r}: a line has a bad vertex index")
+    if drop_flat:
         extent = max(float(np.ptp(vertices, axis=0).max()), sys.float_info.min)
-        kept = [f for f, a in zip(faces, area, strict=True) if a > 1e-12 * extent**2]
-        polygons = _polygons(vertices, kept, angle_tol, plane_tol)
+        faces = [f for f in faces if np.linalg.norm(_vector_area(vertices[f])) > 1e-12 * extent**2]
+    if merge and faces:
+        polygons = _polygons(vertices, faces, angle_tol, plane_tol)
+    elif orient and faces:
+        polygons = [tuple(f) for f in _orient(vertices, faces, _neighbours(faces))]
     else:
         polygons = [tuple(f) for f in faces]
-    stem = path.name.removesuffix(".ply").removesuffix(".PLY")
-    return Polyhedron(
-        name=stem if name is None else name,
-        vertices=vertices,
-        edges=_face_edges(polygons),
-        faces=tuple(polygons),
-    )
+    sides = _face_edges(polygons)
+    extra = np.array([(min(a, b), max(a, b)) for a, b in lines if a != b], np.int32)
+    edges = np.unique(np.vstack([sides, extra.reshape(-1, 2)]), axis=0).astype(np.int32)
+    return Polyhedron(name=name, vertices=vertices, edges=edges, faces=tuple(polygons))
 
 
 @no_type_check

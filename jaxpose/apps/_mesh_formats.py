@@ -23,13 +23,12 @@ Plain numpy, not traced.
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..geometry._validate import no_type_check
-from ._mesh import _face_edges, _neighbours, _orient, _polygons, _vector_area, read_ply
+from ._mesh import _assemble, read_ply
 from ._polyhedron import Polyhedron
 
 __all__ = ["read_cao", "read_mesh", "read_obj"]
@@ -54,43 +53,25 @@ def _check_tol(angle_tol: float, plane_tol: float) -> None:
             raise ValueError(f"{label} must be a number in [0, 1), got {tol!r}")
 
 
+def _check_name(name: object) -> None:
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"name must be a str or None, got {type(name).__name__}")
+
+
 def _build(
-    name: str,
-    vertices: np.ndarray,
+    path: Path,
+    name: str | None,
+    vertices,
     faces: list[list[int]],
     lines: list[tuple[int, int]],
-    *,
-    merge: bool,
-    orient: bool,
-    angle_tol: float,
-    plane_tol: float,
-    path: Path,
+    **options,
 ) -> Polyhedron:
-    """A `Polyhedron` from vertices, faces and extra edges: faces checked, merged into
-    polygons (`merge`) or only oriented (`orient`), edges the faces' sides and `lines`."""
-    if len(vertices) == 0:
-        raise ValueError(f"path {str(path)!r}: no vertices")
-    if not np.all(np.isfinite(vertices)):
-        raise ValueError(f"path {str(path)!r}: vertices contain NaN or infinite values")
-    count = len(vertices)
-    for f in faces:
-        if len(f) < 3 or min(f) < 0 or max(f) >= count:
-            raise ValueError(f"path {str(path)!r}: a face has under 3 vertices or a bad index")
-    for a, b in lines:
-        if min(a, b) < 0 or max(a, b) >= count:
-            raise ValueError(f"path {str(path)!r}: a line has a bad vertex index")
-    extent = max(float(np.ptp(vertices, axis=0).max()), sys.float_info.min)
-    faces = [f for f in faces if np.linalg.norm(_vector_area(vertices[f])) > 1e-12 * extent**2]
-    if merge and faces:
-        polygons = _polygons(vertices, faces, angle_tol, plane_tol)
-    elif orient and faces:
-        polygons = [tuple(f) for f in _orient(vertices, faces, _neighbours(faces))]
-    else:
-        polygons = [tuple(f) for f in faces]
-    sides = _face_edges(polygons)
-    extra = np.array([(min(a, b), max(a, b)) for a, b in lines if a != b], np.int32)
-    edges = np.unique(np.vstack([sides, extra.reshape(-1, 2)]), axis=0).astype(np.int32)
-    return Polyhedron(name=name, vertices=vertices, edges=edges, faces=tuple(polygons))
+    """The model read from `path`, named `name` or after the file (its name without
+    its suffix), built by the mesh readers' one builder (`_mesh._assemble`)."""
+    stem = path.name[: -len(path.suffix)] if path.suffix else path.name
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    return _assemble(stem if name is None else name, vertices, faces, lines, path=path,
+                     **options)  # fmt: skip
 
 
 def _obj_index(word: str, count: int, path: Path, line: int) -> int:
@@ -126,8 +107,7 @@ def read_obj(
     **Raises:** `ValueError` naming the path for an unreadable or malformed file.
     """
     path = _as_path(path)
-    if name is not None and not isinstance(name, str):
-        raise ValueError(f"name must be a str or None, got {type(name).__name__}")
+    _check_name(name)
     _check_tol(angle_tol, plane_tol)
     vertices: list[list[float]] = []
     faces: list[list[int]] = []
@@ -149,18 +129,8 @@ def read_obj(
         elif words[0] == "l":
             chain = [_obj_index(w, len(vertices), path, number) for w in words[1:]]
             lines.extend(zip(chain[:-1], chain[1:], strict=True))
-    stem = path.name[: -len(path.suffix)] if path.suffix else path.name
-    return _build(
-        stem if name is None else name,
-        np.array(vertices, dtype=np.float64).reshape(-1, 3),
-        faces,
-        lines,
-        merge=merge,
-        orient=True,
-        angle_tol=angle_tol,
-        plane_tol=plane_tol,
-        path=path,
-    )
+    return _build(path, name, vertices, faces, lines, merge=merge, orient=True,
+                  angle_tol=angle_tol, plane_tol=plane_tol)  # fmt: skip
 
 
 def _cao_rows(text: str, path: Path) -> list[list[str]]:
@@ -221,8 +191,7 @@ def read_cao(
     curved primitive with `curved="error"`), naming `curved` for a bad option.
     """
     path = _as_path(path)
-    if name is not None and not isinstance(name, str):
-        raise ValueError(f"name must be a str or None, got {type(name).__name__}")
+    _check_name(name)
     if curved not in ("skip", "error"):
         raise ValueError(f"curved must be 'skip' or 'error', got {curved!r}")
     rows = _cao_rows(_read_text(path), path)
@@ -266,18 +235,8 @@ def read_cao(
             raise ValueError(f"path {str(path)!r}: a face from lines has a bad line index")
         faces.append(_loop_from_lines(lines, chosen, path))
     lines += [(f[0], f[1]) for f in point_faces if len(f) == 2]  # two-point "faces"
-    stem = path.name[: -len(path.suffix)] if path.suffix else path.name
-    return _build(
-        stem if name is None else name,
-        np.asarray(points, dtype=np.float64).reshape(-1, 3),
-        faces,
-        lines,
-        merge=False,
-        orient=orient,
-        angle_tol=0.0,
-        plane_tol=0.0,
-        path=path,
-    )
+    return _build(path, name, points, faces, lines, merge=False, orient=orient,
+                  angle_tol=0.0, plane_tol=0.0)  # fmt: skip
 
 
 @no_type_check

@@ -122,6 +122,57 @@ class TrackOptions:
     use_edges: bool = True
     use_points: bool = True
 
+    def __post_init__(self) -> None:
+        for name, kind, bound in _CHECKS:
+            _check_field(name, getattr(self, name), kind, bound)
+
+
+#: Each field of `TrackOptions`, how it is checked and against what: `"int"` an int
+#: >= bound, `"number"` a number > bound, `"choice"` one of bound, `"bool"` a bool,
+#: `"ratio"` None or a number > bound, `"angle"` a number in (0, bound].
+_CHECKS: tuple[tuple[str, str, object], ...] = (
+    ("spacing", "number", 0),
+    ("search", "int", 2),
+    ("refine_search", "int", 2),
+    ("threshold", "number", 0),
+    ("rounds", "int", 1),
+    ("max_corners", "int", 1),
+    ("min_corners", "int", 0),
+    ("erode", "int", 0),
+    ("fb_threshold", "number", 0),
+    ("iterations", "int", 1),
+    ("min_scale", "number", 0),
+    ("min_rows", "int", 0),
+    ("grazing", "angle", 90),
+    ("choose", "choice", ("strongest", "nearest")),
+    ("ratio", "ratio", 1),
+    ("edges", "choice", ("all", "outline")),
+    ("predict", "choice", ("velocity", "still")),
+    ("recast", "bool", None),
+    ("use_edges", "bool", None),
+    ("use_points", "bool", None),
+)
+
+
+def _check_field(name: str, value, kind: str, bound) -> None:
+    """ValueError naming `options.<name>` when `value` is not of its `kind` within
+    `bound` (see `_CHECKS`)."""
+    number = not isinstance(value, bool) and isinstance(value, int | float)
+    if kind == "int":
+        good, want = number and isinstance(value, int) and value >= bound, f"an int >= {bound}"
+    elif kind == "number":
+        good, want = number and value > bound, f"a number > {bound}"
+    elif kind == "choice":
+        good, want = value in bound, f"one of {bound}"
+    elif kind == "bool":
+        good, want = isinstance(value, bool), "a bool"
+    elif kind == "ratio":
+        good, want = value is None or (number and value > bound), f"> {bound} or None"
+    else:  # "angle"
+        good, want = number and 0 < value <= bound, f"in (0, {bound}]"
+    if not good:
+        raise ValueError(f"options.{name} must be {want}, got {value!r}")
+
 
 class TrackedFrame(NamedTuple):
     """One frame's result.
@@ -305,30 +356,6 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
     return samples.points[keep], lines, keys[keep], found.strength[keep]
 
 
-def _check_options(options: TrackOptions) -> None:
-    """ValueError naming the field of `options` that is out of range."""
-    choices = {"choose": ("strongest", "nearest"), "predict": ("velocity", "still"),
-               "edges": ("all", "outline")}  # fmt: skip
-    for field, allowed in choices.items():
-        if getattr(options, field) not in allowed:
-            raise ValueError(f"options.{field} must be one of {allowed}, got "
-                             f"{getattr(options, field)!r}")  # fmt: skip
-    for field in ("search", "refine_search", "rounds", "max_corners", "iterations"):
-        value = getattr(options, field)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"options.{field} must be an int >= 1, got {value!r}")
-    if options.search < 2 or options.refine_search < 2:
-        raise ValueError("options.search and options.refine_search must be >= 2")
-    for field in ("spacing", "threshold", "fb_threshold", "min_scale"):
-        value = getattr(options, field)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
-            raise ValueError(f"options.{field} must be a number > 0, got {value!r}")
-    if options.ratio is not None and not options.ratio > 1:
-        raise ValueError(f"options.ratio must be > 1 or None, got {options.ratio!r}")
-    if not 0 < options.grazing <= 90:
-        raise ValueError(f"options.grazing must be in (0, 90], got {options.grazing!r}")
-
-
 @no_type_check
 def track(
     frames: Iterable[np.ndarray],
@@ -360,7 +387,6 @@ def track(
     options = TrackOptions() if options is None else options
     if not isinstance(options, TrackOptions):
         raise ValueError(f"options must be a TrackOptions, got {type(options).__name__}")
-    _check_options(options)
 
     def run() -> Iterator[TrackedFrame]:
         nonlocal R, t

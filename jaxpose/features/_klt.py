@@ -20,6 +20,7 @@ import numpy as np
 
 from ..geometry._validate import no_type_check
 from ._moving_edges import _grey
+from ._raster import _dots
 
 __all__ = ["Tracks", "detect_corners", "track_points"]
 
@@ -105,10 +106,7 @@ def detect_corners(
     if existing is not None:
         existing = _as_points(existing, "existing")
         radius = max(int(round(min_distance)), 1)
-        xy = np.round(existing).astype(int)
-        xy = xy[(xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)]
-        dots = np.zeros((h, w), np.uint8)
-        dots[xy[:, 1], xy[:, 0]] = 255
+        dots = np.where(_dots(existing, (h, w)), 255, 0).astype(np.uint8)
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         region[cv2.dilate(dots, disc) > 0] = 0
     if not region.any():
