@@ -44,6 +44,7 @@ from ._recognition import verify as verify
 from ._recognition import verify_hypotheses as verify_hypotheses
 from ._recognize import Recognition as Recognition
 from ._recognize import recognize as recognize
+from ._reinit import recognition_reinit as recognition_reinit
 from ._render import face_textures as face_textures
 from ._render import noise_texture as noise_texture
 from ._render import render as render

@@ -41,7 +41,8 @@ Plain numpy and OpenCV per frame: one frame of 640 x 480 costs a few millisecond
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -99,6 +100,12 @@ class TrackOptions:
       not pile up in the model; the edges hold the pose to the model). False: once,
       when a point is detected.
     - `use_edges`, `use_points`: which measurements take part.
+    - `min_support`, `max_rms_ratio`, `min_rms`: when a frame's measurements support
+      its pose (otherwise the frame is `"lost"`): at least `min_rows` weighted rows, at
+      least `min_support` of the visible edge samples matched with a nonzero weight
+      (with edges), and a weighted RMS residual of the edges (of the points without
+      edges) at most `max_rms_ratio` times the median of the last tracked frames' (the
+      limit never below `min_rms` px).
     """
 
     spacing: float = 8.0
@@ -121,6 +128,9 @@ class TrackOptions:
     recast: bool = True
     use_edges: bool = True
     use_points: bool = True
+    min_support: float = 0.3
+    max_rms_ratio: float = 3.0
+    min_rms: float = 1.0
 
     def __post_init__(self) -> None:
         for name, kind, bound in _CHECKS:
@@ -151,6 +161,9 @@ _CHECKS: tuple[tuple[str, str, object], ...] = (
     ("recast", "bool", None),
     ("use_edges", "bool", None),
     ("use_points", "bool", None),
+    ("min_support", "fraction", None),
+    ("max_rms_ratio", "number", 1),
+    ("min_rms", "number", 0),
 )
 
 
@@ -166,6 +179,8 @@ def _check_field(name: str, value, kind: str, bound) -> None:
         good, want = value in bound, f"one of {bound}"
     elif kind == "bool":
         good, want = isinstance(value, bool), "a bool"
+    elif kind == "fraction":
+        good, want = number and 0 <= value <= 1, "a number in [0, 1]"
     elif kind == "ratio":
         good, want = value is None or (number and value > bound), f"> {bound} or None"
     else:  # "angle"
@@ -185,6 +200,11 @@ class TrackedFrame(NamedTuple):
     - `edges`, `points`: how many edge matches and KLT points took part (with a
       nonzero weight).
     - `rms`: the weighted RMS pixel residual of those.
+    - `status`: `"initialised"` (the first pose held: the given one, or the first that
+      `reinit` gave, refined on the frame), `"tracked"` (carried from the last frame),
+      `"lost"` (the frame's measurements do not support a pose: `ok` False, the pose is
+      the last one held), `"reinitialised"` (found again after lost frames).
+    - `ms`: the time the frame took in the tracker (milliseconds, decoding excluded).
     """
 
     frame: int
@@ -194,6 +214,8 @@ class TrackedFrame(NamedTuple):
     edges: int
     points: int
     rms: float
+    status: str
+    ms: float
 
 
 def _rotation(w: np.ndarray) -> np.ndarray:
@@ -269,10 +291,11 @@ def _rows(R, t, K, meas: _Measurements):
 
 def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
     """Robust Gauss-Newton on the linear method's rows (see the module docstring).
-    Returns `(R, t, edge_weights, point_weights, rms, ok)`."""
+    Returns `(R, t, edge_weights, point_weights, rms, judged, ok)`: `rms` over all the
+    weighted rows, `judged` over the edges' (the points' without edges)."""
     n_e, n_p = len(meas.edge_model), len(meas.point_model)
     w_e, w_p = np.zeros(n_e), np.zeros(n_p)
-    rms, ok = 0.0, False
+    rms, judged, ok = 0.0, 0.0, False
     for _ in range(options.iterations):
         r, J, centre = _rows(R, t, K, meas)
         w_e, s_e = _tukey(r[:n_e], options.min_scale)
@@ -299,13 +322,18 @@ def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
         dR = _rotation(step[3:])
         R, t = _orthonormal(dR @ R), dR @ (t - centre) + centre + step[:3]
         rms = float(np.sqrt((w * r**2).sum() / max(w.sum(), 1e-300)))  # (unscaled)
+        kind = slice(0, n_e) if np.any(w_e > 0) else slice(n_e, None)
+        judged = float(np.sqrt((w * r**2)[kind].sum() / max(w[kind].sum(), 1e-300)))
         ok = True
-    return R, t, w_e, w_p, rms, ok
+    return R, t, w_e, w_p, rms, judged, ok
 
 
 class _Corners(NamedTuple):
     pixels: np.ndarray  # (P, 2) distorted image pixels in the last frame
     model: np.ndarray  # (P, 3)
+
+
+_NO_CORNERS = _Corners(np.zeros((0, 2)), np.zeros((0, 3)))
 
 
 class _Contrasts(NamedTuple):
@@ -345,7 +373,8 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
                          threshold=options.threshold, mask=samples.visible,
                          contrast=_expected(contrasts, keys), choose=options.choose,
                          ratio=options.ratio)  # fmt: skip
-    keep = found.valid & (samples.outline | (options.edges == "all"))
+    wanted = samples.visible & (samples.outline | (options.edges == "all"))
+    keep = found.valid & wanted
     q = found.matched[keep]
     ahead = q + np.column_stack([found.normals[keep, 1], -found.normals[keep, 0]])
     qu, au = _undistort(q, K, dist), _undistort(ahead, K, dist)
@@ -353,7 +382,83 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
     n = np.column_stack([-d[:, 1], d[:, 0]])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     lines = np.column_stack([n, -(n * qu).sum(axis=1)])
-    return samples.points[keep], lines, keys[keep], found.strength[keep]
+    return samples.points[keep], lines, keys[keep], found.strength[keep], int(wanted.sum())
+
+
+class _Fit(NamedTuple):
+    """One frame's pose fitted from a start: the pose, whether the solve ran, the
+    weighted edge matches and points, the RMS residual, the edges' contrast table, the
+    weights of the points, the fraction of visible edge samples matched (1 without
+    edges), and the RMS residual of the edges (of the points without edges)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    ok: bool
+    edges: int
+    points: int
+    rms: float
+    table: _Contrasts
+    w_p: np.ndarray
+    support: float
+    judged: float
+
+
+def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) -> _Fit:
+    """The pose of one frame from `(R, t)`: edges measured and the pose solved,
+    `options.rounds` times (the search range shrinking), with the KLT points given."""
+    points_px = _undistort(corners.pixels, K, dist)
+    fit = _Fit(R, t, False, 0, 0, 0.0, _NO_CONTRAST, np.zeros(len(points_px)), 0.0, 0.0)
+    for round_ in range(options.rounds):
+        search = options.search if round_ == 0 else options.refine_search
+        if options.use_edges:
+            e_model, e_lines, e_index, e_strength, wanted = _edge_measurements(
+                grey, geo, K, dist, R, t, size, search, contrasts, options
+            )
+        else:
+            e_model, e_lines = np.zeros((0, 3)), np.zeros((0, 3))
+            e_index, e_strength, wanted = np.zeros(0), np.zeros(0), 0
+        meas = _Measurements(e_model, e_lines, corners.model, points_px)
+        R1, t1, w_e, w_p, rms, judged, ok = _solve(R, t, K, meas, options)
+        if not ok or not np.all(np.isfinite(t1)):
+            return fit._replace(ok=False)
+        R, t = R1, t1
+        kept = w_e > 0
+        order = np.argsort(e_index[kept])
+        support = np.count_nonzero(kept) / wanted if options.use_edges else 1.0
+        fit = _Fit(R, t, True, int(np.count_nonzero(kept)), int(np.count_nonzero(w_p)), rms,
+                   _Contrasts(e_index[kept][order], e_strength[kept][order]), w_p,
+                   support, judged)  # fmt: skip
+    return fit
+
+
+#: How many of the last tracked frames set the usual RMS residual.
+_HISTORY = 15
+
+
+def _supported(fit: _Fit, usual: list[float], options: TrackOptions) -> bool:
+    """Whether a frame's measurements support its fitted pose (`TrackOptions`'s
+    `min_rows`, `min_support`, `max_rms_ratio`, `min_rms`)."""
+    if not fit.ok or fit.support < options.min_support:
+        return False
+    if not usual:
+        return True
+    limit = max(options.max_rms_ratio * float(np.median(usual)), options.min_rms)
+    return fit.judged <= limit
+
+
+def _as_pose(pose) -> tuple[np.ndarray, np.ndarray]:
+    """`(R, t)` from a pair `(R (3, 3) or rvec (3,), t (3,))`; ValueError otherwise."""
+    try:
+        R = np.asarray(pose[0], np.float64)
+        t = np.asarray(pose[1], np.float64).reshape(3)
+        if R.size == 3:
+            R = _rotation(R.reshape(3))
+        if R.shape != (3, 3) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            raise ValueError
+    except (TypeError, ValueError, IndexError) as exc:
+        raise ValueError(f"reinit must return None or a finite pair (R or rvec, t), got "
+                         f"{pose!r}") from exc  # fmt: skip
+    return _orthonormal(R), t
 
 
 @no_type_check
@@ -362,9 +467,10 @@ def track(
     model: Polyhedron | MeshGeometry,
     K,
     dist,
-    initial_pose: tuple,
+    initial_pose: tuple | None,
     *,
     options: TrackOptions | None = None,
+    reinit: Callable[[np.ndarray, int], tuple | None] | None = None,
 ) -> Iterator[TrackedFrame]:
     """Track a model through frames (see the module docstring), one result per frame.
 
@@ -373,17 +479,33 @@ def track(
     - `model`: a `Polyhedron` (or its `MeshGeometry`).
     - `K` `(3, 3)`, `dist` (OpenCV's coefficients or None): the camera.
     - `initial_pose`: `(R, t)` in the first frame, model to camera (from recognition or
-      by hand); it is refined on the first frame's edges.
+      by hand); it is refined on the first frame's edges. None: the first frame is
+      found by `reinit` (required then).
     - `options`: `TrackOptions`.
+    - `reinit`: `reinit(frame, index) -> (R or rvec, t) or None`, a pose of the object
+      in a frame found afresh (e.g. `recognition_reinit`: recognition from the mesh).
+      After a lost frame, each following frame is fitted from the pose it gives, then
+      from the last pose held, until one is supported (`"reinitialised"`); None: from
+      the last pose held only (the object must come back near where it was lost).
 
-    **Returns:** a generator of `TrackedFrame`.
+    **Returns:** a generator of `TrackedFrame`, one per frame: a frame whose
+    measurements do not support the pose is `"lost"` (`TrackOptions`: `min_rows`,
+    `min_support`, `max_rms_ratio`), never `"tracked"`.
 
     **Raises:** `ValueError` naming the argument (the frames' when they are iterated).
     """
     geo = mesh_geometry(model)
-    if not isinstance(initial_pose, tuple | list) or len(initial_pose) != 2:
-        raise ValueError("initial_pose must be a pair (R, t)")
-    K, dist, R, t = _check_pose(K, dist, *initial_pose)
+    if initial_pose is None:
+        if reinit is None:
+            raise ValueError("initial_pose may be None only with a reinit callable")
+        K, dist, _, _ = _check_pose(K, dist, np.eye(3), np.array([0.0, 0.0, 1.0]))
+        R, t = None, None
+    elif not isinstance(initial_pose, tuple | list) or len(initial_pose) != 2:
+        raise ValueError("initial_pose must be a pair (R, t) or None")
+    else:
+        K, dist, R, t = _check_pose(K, dist, *initial_pose)
+    if reinit is not None and not callable(reinit):
+        raise ValueError(f"reinit must be callable or None, got {type(reinit).__name__}")
     options = TrackOptions() if options is None else options
     if not isinstance(options, TrackOptions):
         raise ValueError(f"options must be a TrackOptions, got {type(options).__name__}")
@@ -391,9 +513,11 @@ def track(
     def run() -> Iterator[TrackedFrame]:
         nonlocal R, t
         previous, size = None, None
-        corners = _Corners(np.zeros((0, 2)), np.zeros((0, 3)))
+        corners = _NO_CORNERS
         contrasts = _NO_CONTRAST
         last_seen, motion = None, None
+        usual: list[float] = []  # the RMS residuals of the last tracked frames
+        lost, held = R is None, False  # held: a pose was supported once
         for index, frame in enumerate(frames):
             grey = _grey(frame)
             grey8 = np.clip(grey, 0, 255).astype(np.uint8) if grey.dtype != np.uint8 else grey
@@ -401,43 +525,48 @@ def track(
                 size = (grey.shape[1], grey.shape[0])
             elif (grey.shape[1], grey.shape[0]) != size:
                 raise ValueError(f"frames must all have size {size}, got {grey.shape[::-1]}")
-            # KLT points from the previous frame.
-            points_px, points_model = np.zeros((0, 2)), np.zeros((0, 3))
-            if previous is not None and len(corners.pixels) and options.use_points:
-                tracks = track_points(previous, grey8, corners.pixels,
-                                      fb_threshold=options.fb_threshold)  # fmt: skip
-                corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
-                points_px, points_model = corners.pixels, corners.model
-            R0, t0 = R, t
-            if options.predict == "velocity" and motion is not None:
-                R, t = _orthonormal(motion[0] @ R), motion[0] @ t + motion[1]
-            ok, n_edges, w_p, rms = False, 0, np.zeros(len(points_px)), 0.0
-            table = _NO_CONTRAST
-            for round_ in range(max(options.rounds, 1)):
-                search = options.search if round_ == 0 else options.refine_search
-                if options.use_edges:
-                    e_model, e_lines, e_index, e_strength = _edge_measurements(
-                        grey, geo, K, dist, R, t, size, search, contrasts, options
-                    )
-                else:
-                    e_model, e_lines = np.zeros((0, 3)), np.zeros((0, 3))
-                    e_index, e_strength = np.zeros(0), np.zeros(0)
-                meas = _Measurements(e_model, e_lines, points_model,
-                                     _undistort(points_px, K, dist))  # fmt: skip
-                R1, t1, w_e, w_p, rms, ok = _solve(R, t, K, meas, options)
-                if not ok:
-                    break
-                R, t = R1, t1
-                n_edges = int(np.count_nonzero(w_e))
-                kept = w_e > 0
-                order = np.argsort(e_index[kept])
-                table = _Contrasts(e_index[kept][order], e_strength[kept][order])
-            if not ok or not np.all(np.isfinite(t)):
-                R, t = R0, t0
-                ok, motion = False, None
+            began = time.perf_counter()
+            if not lost:
+                # KLT points from the previous frame; the pose predicted.
+                if previous is not None and len(corners.pixels) and options.use_points:
+                    tracks = track_points(previous, grey8, corners.pixels,
+                                          fb_threshold=options.fb_threshold)  # fmt: skip
+                    corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
+                R_pred, t_pred = R, t
+                if options.predict == "velocity" and motion is not None:
+                    R_pred, t_pred = _orthonormal(motion[0] @ R), motion[0] @ t + motion[1]
+                fit = _fit(grey, geo, K, dist, R_pred, t_pred, corners, contrasts, size, options)
+                status = "lost"
+                if _supported(fit, usual, options):
+                    status = "tracked" if held else "initialised"
             else:
-                motion = (R @ R0.T, t - R @ R0.T @ t0) if index else None
+                # Re-initialisation: from the pose the injected `reinit` gives, then from
+                # the last pose held; the first whose fit the frame supports.
+                starts = []
+                if reinit is not None:
+                    found = reinit(frame, index)
+                    if found is not None:
+                        starts.append(_as_pose(found))
+                if R is not None:
+                    starts.append((R, t))
+                status, fit = "lost", None
+                for R_try, t_try in starts:
+                    fit = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, _NO_CONTRAST,
+                               size, options)  # fmt: skip
+                    if _supported(fit, usual, options):
+                        status = "reinitialised" if held else "initialised"
+                        break
+            lost = status == "lost"
+            if lost:
+                # The pose held is the last supported one; what was carried is dropped.
+                corners, contrasts, last_seen, motion = _NO_CORNERS, _NO_CONTRAST, None, None
+            else:
+                R0, t0 = R, t
+                R, t, held = fit.R, fit.t, True
+                motion = (R @ R0.T, t - R @ R0.T @ t0) if status == "tracked" else None
+                usual = (usual + [fit.judged])[-_HISTORY:]
                 # An edge whose faces changed between seen and not changes its contrast.
+                table = fit.table
                 seen = facing(geo, R, t, options.grazing)
                 sides = np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
                 if last_seen is not None:
@@ -445,27 +574,31 @@ def track(
                     same = ~changed[np.floor(table.keys).astype(int)]
                     table = _Contrasts(table.keys[same], table.values[same])
                 contrasts, last_seen = table, sides
-                if len(points_px):  # drop the points the solve rejected
-                    corners = _Corners(corners.pixels[w_p > 0], corners.model[w_p > 0])
+                if status == "tracked" and len(corners.pixels):  # those the solve kept
+                    corners = _Corners(corners.pixels[fit.w_p > 0], corners.model[fit.w_p > 0])
+                elif status != "tracked":
+                    corners = _NO_CORNERS
                 if options.recast and len(corners.pixels):
                     hits = cast_rays(geo, K, dist, R, t, corners.pixels)
                     corners = _Corners(corners.pixels[hits.hit], hits.points[hits.hit])
-            if options.use_points and len(corners.pixels) < options.min_corners:
-                region = face_mask(geo, K, dist, R, t, size, erode=options.erode)
-                room = options.max_corners - len(corners.pixels)
-                new = detect_corners(
-                    grey8,
-                    region,
-                    max_corners=max(room, 1),
-                    existing=corners.pixels if len(corners.pixels) else None,
-                )
-                hits = cast_rays(geo, K, dist, R, t, new)
-                corners = _Corners(
-                    np.vstack([corners.pixels, new[hits.hit]]),
-                    np.vstack([corners.model, hits.points[hits.hit]]),
-                )  # fmt: skip
+                if options.use_points and len(corners.pixels) < options.min_corners:
+                    region = face_mask(geo, K, dist, R, t, size, erode=options.erode)
+                    room = options.max_corners - len(corners.pixels)
+                    new = detect_corners(grey8, region, max_corners=max(room, 1),
+                                         existing=corners.pixels if len(corners.pixels)
+                                         else None)  # fmt: skip
+                    hits = cast_rays(geo, K, dist, R, t, new)
+                    corners = _Corners(
+                        np.vstack([corners.pixels, new[hits.hit]]),
+                        np.vstack([corners.model, hits.points[hits.hit]]),
+                    )  # fmt: skip
             previous = grey8
-            yield TrackedFrame(index, R.copy(), t.copy(), ok, n_edges,
-                               int(np.count_nonzero(w_p)), rms)  # fmt: skip
+            edges = fit.edges if fit is not None else 0
+            points = fit.points if fit is not None else 0
+            rms = fit.rms if fit is not None else 0.0
+            R_out = np.eye(3) if R is None else R.copy()  # (no pose held yet)
+            t_out = np.zeros(3) if t is None else t.copy()
+            yield TrackedFrame(index, R_out, t_out, not lost, edges, points, rms,
+                               status, 1e3 * (time.perf_counter() - began))  # fmt: skip
 
     return run()

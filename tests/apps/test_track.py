@@ -12,6 +12,7 @@ from jaxpose.apps import (
     mesh_geometry,
     noise_texture,
     read_ply,
+    render,
     render_sequence,
     sample_path,
     smooth_trajectory,
@@ -77,6 +78,7 @@ def test_tracks_a_rendered_box(look, use_points):
     )
     assert [r.frame for r in results] == list(range(40))
     assert all(r.ok for r in results)
+    assert [r.status for r in results] == ["initialised"] + ["tracked"] * 39
     assert min(r.edges for r in results) > 50
     if use_points:
         assert min(r.points for r in results[1:]) > 50
@@ -129,7 +131,7 @@ def test_a_wrong_start_is_pulled_in_and_a_blank_frame_keeps_the_pose():
     rotation, translation = _errors(results, Rs, ts)
     assert rotation[-1] < 0.3 and translation[-1] < 0.003
     blank = list(track([np.zeros((480, 640), np.uint8)], GEO, K, None, (Rs[0], ts[0])))
-    assert not blank[0].ok and blank[0].edges == 0
+    assert not blank[0].ok and blank[0].edges == 0 and blank[0].status == "lost"
     np.testing.assert_array_equal(blank[0].R, Rs[0])
 
 
@@ -145,8 +147,87 @@ def test_bad_arguments():
         track([], GEO, K, None, (R, t), options=TrackOptions(search=1))
     with pytest.raises(ValueError, match="options.ratio"):
         track([], GEO, K, None, (R, t), options=TrackOptions(ratio=0.5))
+    with pytest.raises(ValueError, match="options.min_support"):
+        TrackOptions(min_support=1.5)
+    with pytest.raises(ValueError, match="options.max_rms_ratio"):
+        TrackOptions(max_rms_ratio=0.5)
+    with pytest.raises(ValueError, match="reinit"):
+        track([], GEO, K, None, None)
+    with pytest.raises(ValueError, match="reinit"):
+        track([], GEO, K, None, (R, t), reinit="recognise")
+    with pytest.raises(ValueError, match="reinit must return"):
+        list(track([np.zeros((48, 64), np.uint8)], GEO, K, None, None, reinit=lambda f, i: 3))
     with pytest.raises(ValueError, match="K"):
         track([], GEO, np.eye(4), None, (R, t))
     frames = [np.zeros((48, 64), np.uint8), np.zeros((40, 64), np.uint8)]
     with pytest.raises(ValueError, match="frames"):
         list(track(frames, GEO, K, None, (R, t)))
+
+
+# Re-initialisation after a full occlusion: a small image (480 x 360) and a cheap
+# stand-in for recognition, so that no program is compiled.
+SMALL_K = np.array([[600.0, 0.0, 240.0], [0.0, 600.0, 180.0], [0.0, 0.0, 1.0]])
+SMALL = (480, 360)
+SHADES = np.array([200.0, 90.0, 150.0, 240.0, 120.0, 60.0])
+
+
+def _occluded(count, hidden, rotation=20.0, translation=4.0, seed=1):
+    """Frames of the flat-shaded box with everything but the image's border hidden by a
+    grey rectangle on the frames `hidden`."""
+    R0 = cv2.Rodrigues(np.array([2.2, -0.6, 0.4]))[0]
+    t0 = np.array([0.0, 0.0, 80.0]) - R0 @ CENTRE
+    Rs, ts = smooth_trajectory(R0, t0, count, centre=CENTRE, rotation=rotation,
+                               translation=translation, seed=seed)  # fmt: skip
+    rng = np.random.default_rng(seed)
+    frames = [
+        render(GEO, SMALL_K, None, R, t, SMALL, background=40, supersample=2, shades=SHADES,
+               noise=2.0, rng=rng, occluder=(30, 15, 450, 345) if i in hidden else None)
+        for i, (R, t) in enumerate(zip(Rs, ts, strict=True))
+    ]  # fmt: skip
+    return frames, Rs, ts
+
+
+def test_a_full_occlusion_is_lost_and_the_track_comes_back():
+    hidden = range(10, 16)
+    frames, Rs, ts = _occluded(28, hidden)
+    asked = []
+
+    def reinit(frame, index):  # recognition's stand-in: about its accuracy, None if hidden
+        asked.append(index)
+        if index in hidden:
+            return None
+        nudge = cv2.Rodrigues(np.array([0.004, -0.003, 0.002]))[0]
+        return cv2.Rodrigues(nudge @ Rs[index])[0].ravel(), ts[index] + [0.3, -0.2, 0.4]
+
+    options = TrackOptions(use_points=False)
+    results = list(track(frames, GEO, SMALL_K, None, (Rs[0], ts[0]), options=options,
+                         reinit=reinit))  # fmt: skip
+    status = [r.status for r in results]
+    assert status[0] == "initialised"
+    assert all(status[i] == "lost" and not results[i].ok for i in hidden)
+    assert asked[0] == hidden[0] + 1 and all(i in asked for i in hidden[1:])
+    back = next(i for i in range(hidden[-1] + 1, len(frames)) if results[i].ok)
+    assert back <= hidden[-1] + 5 and status[back] == "reinitialised"
+    assert all(s == "tracked" for s in status[back + 1 :] + status[1 : hidden[0]])
+    assert all(r.ms > 0 for r in results)
+    rotation, translation = _errors(results, Rs, ts)
+    seen = [i for i in range(len(frames)) if i not in hidden]
+    assert np.all(rotation[seen] <= 0.5) and np.all(translation[seen] <= 0.005)
+    held = results[hidden[0] - 1]  # a lost frame holds the last pose
+    np.testing.assert_array_equal(results[hidden[-1]].R, held.R)
+
+
+def test_back_in_place_without_reinit_and_recognised_at_the_start():
+    hidden = range(4, 7)
+    frames, Rs, ts = _occluded(10, hidden, rotation=1.0, translation=0.3, seed=2)
+    options = TrackOptions(use_points=False)
+    results = list(track(frames, GEO, SMALL_K, None, (Rs[0], ts[0]), options=options))
+    status = [r.status for r in results]
+    assert status[4:7] == ["lost"] * 3 and status[7] == "reinitialised"
+    assert status[8:] == ["tracked"] * 2
+    # No first pose: the frames before the stand-in finds the object are lost, with a
+    # finite placeholder; the first pose found is "initialised".
+    late = lambda frame, index: (Rs[index], ts[index]) if index >= 2 else None  # noqa: E731
+    results = list(track(frames[:4], GEO, SMALL_K, None, None, options=options, reinit=late))
+    assert [r.status for r in results] == ["lost", "lost", "initialised", "tracked"]
+    assert np.all(np.isfinite(results[0].t)) and not results[0].ok

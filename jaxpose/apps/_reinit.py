@@ -1,0 +1,75 @@
+"""Finding the object afresh in a video frame, for the tracker's (re-)initialisation
+(issue #32): recognition from the mesh alone (`recognize`'s vertex path: the image
+front end, then `detect`) or, with a textured model, from its keypoints
+(`locate_textured`), as one callable `reinit(frame, index) -> (R, t) or None` that
+`jaxpose.apps.track` takes.
+
+Plain numpy around the recognition front end (whose compiled programs are stored, see
+`jaxpose.api._programs`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ..features._keypoints import TexturedModel
+from ..geometry._validate import as_dist_coeffs, as_intrinsics, no_type_check
+from ._polyhedron import Polyhedron
+from ._visibility import MeshGeometry
+
+__all__ = ["recognition_reinit"]
+
+
+@no_type_check
+def recognition_reinit(
+    model: Polyhedron | MeshGeometry,
+    camera_matrix,
+    dist_coeffs=None,
+    *,
+    textured: TexturedModel | None = None,
+    **options: Any,
+) -> Callable[[np.ndarray, int], tuple[np.ndarray, np.ndarray] | None]:
+    """A `reinit` for `jaxpose.apps.track`: the pose of `model` in a frame by
+    recognition (see the module docstring).
+
+    **Arguments:**
+    - `model`: the `Polyhedron` tracked (or its `MeshGeometry`).
+    - `camera_matrix` `(3, 3)`, `dist_coeffs`: the camera (OpenCV's conventions).
+    - `textured`: a `TexturedModel` of the object: its keypoints are tried first (a
+      pose with enough inliers is taken), the mesh's recognition after.
+    - `options`: `recognize`'s (`front_end`, and `detect`'s: `noise`, `min_support`...).
+
+    **Returns:** `reinit(frame, index)`: `(R (3, 3), t (3,))`, model to camera, or None
+    when the object is not recognised in the frame.
+
+    **Raises:** `ValueError` naming the argument.
+    """
+    import cv2
+
+    from ._recognize import recognize
+    from ._textured import locate_textured
+
+    mesh = model.model if isinstance(model, MeshGeometry) else model
+    if not isinstance(mesh, Polyhedron):
+        raise ValueError(f"model must be a Polyhedron or a MeshGeometry, got "
+                         f"{type(model).__name__}")  # fmt: skip
+    if textured is not None and not isinstance(textured, TexturedModel):
+        raise ValueError(f"textured must be a TexturedModel or None, got "
+                         f"{type(textured).__name__}")  # fmt: skip
+    K = as_intrinsics(camera_matrix, "camera_matrix")
+    dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
+
+    def reinit(frame: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+        del index
+        if textured is not None:
+            pose = locate_textured(frame, textured, K, dist)
+            if pose.ok:
+                return cv2.Rodrigues(pose.rvec)[0], pose.tvec.reshape(3)
+        for detection in recognize(frame, [mesh], K, dist, **options).detections:
+            return np.asarray(detection.R, np.float64), np.asarray(detection.t, np.float64)
+        return None
+
+    return reinit
