@@ -29,16 +29,8 @@ from ..geometry import (
     observations,
     rotvec_to_matrix,
 )
-from ..strategy import Options, planar_partner, resolve, split_values, with_values
-from ._pnp import (
-    REFINE_STEPS,
-    _pack,
-    _pack_refine,
-    _pad_points,
-    _prepare,
-    _refine_opencv,
-    solve_pnp,
-)
+from ..strategy import Options, planar_partner, split_values, with_values
+from ._pnp import _pack, answer_opencv, opencv_problem, refine_opencv
 from ._programs import program
 from ._solve import solve
 
@@ -106,8 +98,7 @@ def solve_pnp_generic(
     1)` float64, OpenCV's RMSE `||projected - image|| / sqrt(2 n)` over the given pixels
     (Eq. 8 divided by `sqrt(2)`), in increasing order.
     """
-    options = resolve(options, changes)
-    ok, r, t = solve_pnp(
+    problem = opencv_problem(
         object_points,
         image_points,
         camera_matrix,
@@ -115,34 +106,30 @@ def solve_pnp_generic(
         rvec,
         tvec,
         use_extrinsic_guess,
-        options=options,
+        options,
+        changes,
     )
-    if not ok:
+    out = answer_opencv(problem)
+    if not out[0]:
         return 0, (), (), np.zeros((0, 1))
-    given = (object_points, image_points, camera_matrix, dist_coeffs)
-    K, dist, obj, raw, img = _prepare(*given, False)
-    obj64, raw64 = np.asarray(obj, np.float64), np.asarray(raw, np.float64)
-    poses = [(r, t)]
+    options, K, n = problem.options, problem.K, problem.count
+    poses = [(out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy())]
     if options.method != "three_point":
-        K = np.asarray(K, np.float64)
-        pobj, pimg, mask = _pad_points(obj64, np.asarray(img, np.float64))
         key, values = split_values(dataclasses.replace(options, derivative=False))
-        packed = np.concatenate([values, r.ravel(), t.ravel(), _pack(K, pobj, pimg, mask)])
+        head = np.concatenate([values, out[1:7]])
+        packed = np.concatenate([head, _pack(K, problem.obj, problem.img, problem.mask)])
         with jax.enable_x64(True):
             out = np.array(program(_partner_opencv, key)(packed))
-            if out[0] and dist is not None:
-                _, praw, _ = _pad_points(obj64, raw64)
-                packed = _pack_refine(K, dist, out[1:4], out[4:7], pobj, praw, mask)
-                out[1:] = np.asarray(program(_refine_opencv, REFINE_STEPS)(packed))
+        if out[0] and problem.dist is not None:
+            out[1:] = refine_opencv(problem, out[1:4], out[4:7])
         other = (out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy())
         if out[0] and np.all(np.isfinite(out)) and not _same(poses[0], other):
             poses.append(other)
-    K = np.asarray(K, np.float64)
-    d = None if dist is None else np.asarray(dist, np.float64)
+    obj, raw = problem.obj[:n], problem.raw[:n]
     errors = []
     for rv, tv in poses:
-        proj = cv2.projectPoints(obj64, rv, tv, K, d)[0].reshape(-1, 2)
-        errors.append(np.linalg.norm(proj - raw64) / np.sqrt(2 * len(obj64)))
+        proj = cv2.projectPoints(obj, rv, tv, K, problem.dist)[0].reshape(-1, 2)
+        errors.append(np.linalg.norm(proj - raw) / np.sqrt(2 * n))
     order = np.argsort(errors, kind="stable")
     rvecs = tuple(poses[i][0] for i in order)
     tvecs = tuple(poses[i][1] for i in order)

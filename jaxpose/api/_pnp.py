@@ -232,6 +232,98 @@ def _prepare(object_points, image_points, camera_matrix_, dist_coeffs, batched: 
     return K, dist, obj, img, flat.reshape(img.shape)
 
 
+@dataclasses.dataclass(frozen=True)
+class OpenCVProblem:
+    """One problem's arguments in OpenCV's conventions, checked (`opencv_problem`), in
+    float64 with the point axis padded to its bucket (`_pad_points`).
+
+    `options` the resolved `Options`; `guess` the start `(rvec, tvec)` as 6 values when
+    `use_extrinsic_guess`, else `None`; `K` `(3, 3)`; `dist` OpenCV's coefficients or
+    `None`; `obj` `(m, 3)`; `img` `(m, 2)` the pixels undistorted (`raw` itself without
+    distortion); `raw` `(m, 2)` the pixels as given; `mask` `(m,)` the `count` given
+    points (the first ones)."""
+
+    options: Options
+    guess: np.ndarray | None
+    K: np.ndarray
+    dist: np.ndarray | None
+    obj: np.ndarray
+    img: np.ndarray
+    raw: np.ndarray
+    mask: np.ndarray
+    count: int
+
+
+def opencv_problem(
+    object_points,
+    image_points,
+    camera_matrix_,
+    dist_coeffs,
+    rvec,
+    tvec,
+    use_extrinsic_guess,
+    options: Options | None,
+    changes: dict[str, Any],
+) -> OpenCVProblem:
+    """The arguments of `cv2.solvePnP`'s signature (`solve_pnp`, `solve_pnp_generic`)
+    checked and prepared: a `ValueError` naming the argument, in the order given."""
+    options = resolve(options, changes)
+    if not isinstance(use_extrinsic_guess, bool | np.bool_):
+        raise ValueError(f"use_extrinsic_guess must be a bool, got {use_extrinsic_guess!r}")
+    guess = None
+    if use_extrinsic_guess:
+        guess = np.concatenate([_guess(rvec, "rvec"), _guess(tvec, "tvec")])
+    K, dist, obj, raw, img = _prepare(
+        object_points, image_points, camera_matrix_, dist_coeffs, False
+    )
+    count = obj.shape[0]
+    obj, raw = np.asarray(obj, np.float64), np.asarray(raw, np.float64)
+    _, raw, _ = _pad_points(obj, raw)
+    obj, img, mask = _pad_points(obj, np.asarray(img, np.float64))
+    K, dist = np.asarray(K, np.float64), None if dist is None else np.asarray(dist, np.float64)
+    return OpenCVProblem(options, guess, K, dist, obj, img, raw, mask, count)
+
+
+def answer_opencv(problem: OpenCVProblem) -> np.ndarray:
+    """`solve_pnp`'s answer to a prepared problem: `(ok, rvec, tvec)` as one float64
+    vector of 7 (the escalation's rungs, or the start from `guess`, then the refinement
+    in the image with `dist`)."""
+    options, K, obj, mask = problem.options, problem.K, problem.obj, problem.mask
+    rungs = _stages(options)
+    with jax.enable_x64(True):
+        # (numpy in: one transfer each way, no conversion program to compile on a first
+        # call, and no separate `device_put` call)
+        packed = np.concatenate([_values(options), _pack(K, obj, problem.img, mask)])
+        if problem.guess is not None:
+            packed = np.concatenate([packed[:4], problem.guess, packed[4:]])
+            key = split_values(dataclasses.replace(options, derivative=False))[0]
+            out = np.array(program(_solve_opencv_from, key)(packed))
+            rungs = rungs[:1]
+        else:
+            out = np.array(program(_solve_opencv, rungs[0])(packed))
+        for k, rung in enumerate(rungs[1:], start=2):
+            if out[0]:
+                break
+            if not rung_applies(rung, mask.sum()):
+                continue
+            again = np.array(program(_solve_opencv, rung)(packed))
+            if again[0] or k == len(rungs):  # the last rung's answer stands
+                out = again
+        if problem.dist is not None and out[0] and options.method != "three_point":
+            # the pose that minimises the error in the image, as OpenCV's
+            out[1:] = refine_opencv(problem, out[1:4], out[4:7])
+    return out
+
+
+def refine_opencv(problem: OpenCVProblem, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """The pose `(rvec, tvec)` refined to least pixel error in the image with the
+    problem's `dist` (`jaxpose.geometry.refine_in_image`): `(rvec, tvec)` as 6 values."""
+    p = problem
+    packed = _pack_refine(p.K, p.dist, rvec, tvec, p.obj, p.raw, p.mask)
+    with jax.enable_x64(True):
+        return np.asarray(program(_refine_opencv, REFINE_STEPS)(packed))
+
+
 # The entry points check their arguments themselves (a `ValueError` naming the argument,
 # whatever its type), so no run-time type check comes before theirs.
 @no_type_check
@@ -275,43 +367,18 @@ def solve_pnp(
     Rodrigues(rvec) X + tvec`. `ok` is False (with finite placeholders) when no pose is
     accepted.
     """
-    options = resolve(options, changes)
-    if not isinstance(use_extrinsic_guess, bool | np.bool_):
-        raise ValueError(f"use_extrinsic_guess must be a bool, got {use_extrinsic_guess!r}")
-    guess = np.zeros(6)
-    if use_extrinsic_guess:
-        guess = np.concatenate([_guess(rvec, "rvec"), _guess(tvec, "tvec")])
-    K, dist, obj, raw, img = _prepare(
-        object_points, image_points, camera_matrix, dist_coeffs, False
+    problem = opencv_problem(
+        object_points,
+        image_points,
+        camera_matrix,
+        dist_coeffs,
+        rvec,
+        tvec,
+        use_extrinsic_guess,
+        options,
+        changes,
     )
-    rungs = _stages(options)
-    if dist is not None:  # the pixels as given, for the refinement in the image
-        _, raw, _ = _pad_points(obj, np.asarray(raw, np.float64))
-    obj, img, mask = _pad_points(np.asarray(obj, np.float64), np.asarray(img, np.float64))
-    K = np.asarray(K, np.float64)
-    with jax.enable_x64(True):
-        # (numpy in: one transfer each way, no conversion program to compile on a first
-        # call, and no separate `device_put` call)
-        packed = np.concatenate([_values(options), _pack(K, obj, img, mask)])
-        if use_extrinsic_guess:
-            packed = np.concatenate([packed[:4], guess, packed[4:]])
-            key = split_values(dataclasses.replace(options, derivative=False))[0]
-            out = np.array(program(_solve_opencv_from, key)(packed))
-            rungs = rungs[:1]
-        else:
-            out = np.array(program(_solve_opencv, rungs[0])(packed))
-        for k, rung in enumerate(rungs[1:], start=2):
-            if out[0]:
-                break
-            if not rung_applies(rung, mask.sum()):
-                continue
-            again = np.array(program(_solve_opencv, rung)(packed))
-            if again[0] or k == len(rungs):  # the last rung's answer stands
-                out = again
-        if dist is not None and out[0] and options.method != "three_point":
-            # the pose that minimises the error in the image, as OpenCV's
-            packed = _pack_refine(K, dist, out[1:4], out[4:7], obj, raw, mask)
-            out[1:] = np.asarray(program(_refine_opencv, REFINE_STEPS)(packed))
+    out = answer_opencv(problem)
     return bool(out[0]), out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy()
 
 
