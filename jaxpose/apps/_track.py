@@ -424,7 +424,7 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
         R, t = R1, t1
         kept = w_e > 0
         order = np.argsort(e_index[kept])
-        support = np.count_nonzero(kept) / wanted if options.use_edges else 1.0
+        support = np.count_nonzero(kept) / max(wanted, 1) if options.use_edges else 1.0
         fit = _Fit(R, t, True, int(np.count_nonzero(kept)), int(np.count_nonzero(w_p)), rms,
                    _Contrasts(e_index[kept][order], e_strength[kept][order]), w_p,
                    support, judged)  # fmt: skip

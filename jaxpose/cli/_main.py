@@ -1,7 +1,8 @@
 """The `jaxpose` command line: its parser (every subcommand's options) and its entry
 point. Each subcommand runs in its own module: `_reproduce` (the paper's experiment),
 `_bench`, `_solve` (a pose problem read from files), `_point` (a click to a 3D point
-and the robot), `_recognize` (the known objects a photograph shows) and `_warmup`; the
+and the robot), `_recognize` (the known objects a photograph shows), `_track` (an
+object followed through a video) and `_warmup`; the
 rerun recording options (`--rrd`, `--spawn`, `--serve`) are in `_recording`, problem
 files in `_problem`, `_problem_read` and `_problem_write`."""
 
@@ -17,6 +18,7 @@ from ._recognize import cmd_recognize
 from ._recording import add_recording_options
 from ._reproduce import cmd_reproduce
 from ._solve import cmd_solve
+from ._track import cmd_track
 from ._warmup import cmd_warmup
 
 __all__ = ["build_parser", "main"]
@@ -168,6 +170,39 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_recording_options(r)
     r.set_defaults(func=cmd_recognize)
+    tr = sub.add_parser(
+        "track",
+        help="track a known object through a video, a folder of images or a camera",
+        description="Follow a known object from frame to frame (moving edges along the "
+        "model's visible edges and KLT points, the paper's small-movement linear method), "
+        "with a status per frame (initialised, tracked, lost, reinitialised): a frame whose "
+        "measurements do not support the pose is lost, and the object is then recognised "
+        "again from the mesh (and --textured's keypoints). The first frame's pose is "
+        '--init-pose ({"rvec": [..], "tvec": [..]}, OpenCV\'s conventions) or recognised. '
+        '--json writes {"frames": [{"index", "ok", "status", "rvec", "tvec", "error_px", '
+        '"inliers", "ms"}, ...]} (rvec and tvec null where lost), --csv the same columns. '
+        "A progress bar goes to stderr. Exit code 0 when every frame has a pose, 1 when "
+        "some frame is lost, 2 on bad input.",
+    )
+    tr.add_argument("input", help="a video file, a folder of images (sorted by name), or a "
+                    "camera index (0, 1, ...)")  # fmt: skip
+    tr.add_argument("--model", metavar="MESH", required=True, help="the object's mesh "
+                    "(.ply, .obj or ViSP's .cao)")  # fmt: skip
+    tr.add_argument("--textured", metavar="MODEL.yml", help="its textured model (OpenCV's "
+                    "keypoints YAML), tried first when recognising")  # fmt: skip
+    tr.add_argument("--camera", metavar="CAMERA.yml", required=True, help="OpenCV "
+                    "calibration file with camera_matrix and distortion_coefficients")  # fmt: skip
+    tr.add_argument("--init-pose", metavar="POSE.json", help='the first frame\'s pose, '
+                    '{"rvec": [..], "tvec": [..]} (default: recognised)')  # fmt: skip
+    tr.add_argument("--json", metavar="OUT.json", help="write the per-frame poses as JSON")
+    tr.add_argument("--csv", metavar="OUT.csv", help="write the per-frame poses as CSV")
+    tr.add_argument("--overlay", metavar="OUT.mp4", help="write the frames with the model's "
+                    "edges drawn at each pose (green tracked, blue found, red lost)")  # fmt: skip
+    tr.add_argument("--frames", type=int, metavar="N", help="the first N frames only")
+    tr.add_argument("--no-reinit", action="store_true", help="no recognition after a lost "
+                    "frame (the last pose is tried again; needs --init-pose)")  # fmt: skip
+    add_recording_options(tr)
+    tr.set_defaults(func=cmd_track)
     w = sub.add_parser(
         "warmup",
         help="compile solve_pnp's and solve's programs ahead of time, into the program cache",

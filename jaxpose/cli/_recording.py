@@ -11,7 +11,14 @@ from pathlib import Path
 
 from ._common import CliError
 
-__all__ = ["add_recording_options", "check_recording_args", "make_recording", "wants_recording"]
+__all__ = [
+    "add_recording_options",
+    "check_recording_args",
+    "finish_recording",
+    "make_recording",
+    "open_recording",
+    "wants_recording",
+]
 
 
 def add_recording_options(p: argparse.ArgumentParser) -> None:
@@ -62,16 +69,21 @@ def check_recording_args(args) -> None:
         raise CliError(f"--port must be in 1..65535, got {args.port}")
 
 
-def make_recording(args, console, name: str, log) -> None:
-    """Make the recording asked for by --rrd / --spawn / --serve; `log(rec)` fills it."""
-    from ..viz._rerun_recording import close_recording, rerun_recording, serve_web_viewer
+def open_recording(args, name: str, blueprint=None):
+    """The recording stream asked for by --rrd / --spawn / --serve (`blueprint`: its
+    layout, the default one when None), to log into as the command goes (finish it
+    with `finish_recording`)."""
+    from ..viz._rerun_recording import rerun_recording
 
-    with console.status("writing the rerun recording..."):
-        rec = rerun_recording(
-            args.rrd, name=name, spawn=args.spawn, serve=args.serve, port=args.port
-        )
-        log(rec)
-        rec.flush()
+    return rerun_recording(args.rrd, name=name, blueprint=blueprint, spawn=args.spawn,
+                           serve=args.serve, port=args.port)  # fmt: skip
+
+
+def finish_recording(args, console, rec) -> None:
+    """Flush `rec`, say where it went, serve it until Ctrl-C with --serve, close it."""
+    from ..viz._rerun_recording import close_recording, serve_web_viewer
+
+    rec.flush()
     if args.rrd:
         console.print(f"wrote {args.rrd} (open it with: rerun {args.rrd})")
     if args.spawn:
@@ -88,3 +100,12 @@ def make_recording(args, console, name: str, log) -> None:
         except KeyboardInterrupt:
             pass
     close_recording(rec)
+
+
+def make_recording(args, console, name: str, log) -> None:
+    """Make the recording asked for by --rrd / --spawn / --serve; `log(rec)` fills it."""
+    with console.status("writing the rerun recording..."):
+        rec = open_recording(args, name)
+        log(rec)
+        rec.flush()
+    finish_recording(args, console, rec)

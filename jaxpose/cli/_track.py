@@ -1,0 +1,314 @@
+"""`jaxpose track`: a known object followed through a video, a folder of images or a live
+camera (`jaxpose.apps.track`: moving edges and KLT points, the paper's small-movement
+linear method), with an honest status per frame and re-initialisation by recognition
+(`jaxpose.apps.recognition_reinit`) after a lost frame.
+
+The first frame's pose is given (`--init-pose POSE.json`, `{"rvec": [..], "tvec":
+[..]}`, OpenCV's conventions: `x_cam = Rodrigues(rvec) X + tvec`) or recognised from the
+mesh (the keypoints of `--textured` first). Outputs: `--json` (`{"frames": [{"index",
+"ok", "status", "rvec", "tvec", "error_px", "inliers", "ms"}, ...]}`, one entry per
+input frame; `rvec` and `tvec` null on a lost frame), `--csv` (the same columns),
+`--rrd` (the rerun recording: `jaxpose.viz._tracking`) and `--overlay` (an mp4 of the
+frames with the model's visible edges drawn at each pose). A progress bar goes to
+stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ._common import CliError, new_console, setup_jax
+from ._recording import (
+    check_recording_args,
+    finish_recording,
+    open_recording,
+    wants_recording,
+)
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
+__all__ = ["cmd_track", "read_init_pose"]
+
+#: The columns of `--csv` (the keys of each `--json` frame; rvec and tvec as 3 each).
+CSV_COLUMNS = ("index", "ok", "status", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y",
+               "tvec_z", "error_px", "inliers", "ms")  # fmt: skip
+
+
+def read_init_pose(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """`(rvec (3,), tvec (3,))` of a POSE.json file; `CliError` naming `--init-pose`."""
+    import numpy as np
+
+    where = f"--init-pose {path}"
+    try:
+        data = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise CliError(f"{where}: cannot read: {exc.strerror or exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CliError(f"{where}: not JSON ({exc})") from None
+    if not isinstance(data, dict) or "rvec" not in data or "tvec" not in data:
+        raise CliError(f'{where}: expected {{"rvec": [3 numbers], "tvec": [3 numbers]}}')
+    out = []
+    for key in ("rvec", "tvec"):
+        try:
+            value = np.asarray(data[key], dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            value = np.zeros(0)
+        if value.shape != (3,) or not np.all(np.isfinite(value)):
+            raise CliError(f"{where}: {key} must be 3 finite numbers, got {data[key]!r}")
+        out.append(value)
+    if not out[1][2] > 0:
+        raise CliError(f"{where}: tvec must put the object in front of the camera (z > 0)")
+    return out[0], out[1]
+
+
+def _source(text: str):
+    """A camera index for a string of digits that names no file, else the path."""
+    return int(text) if text.isdigit() and not Path(text).exists() else text
+
+
+def _check_args(args) -> None:
+    if not Path(args.model).is_file():
+        raise CliError(f"--model {args.model}: no such file")
+    if Path(args.model).suffix.lower() not in (".ply", ".obj", ".cao"):
+        raise CliError(f"--model {args.model}: a mesh must be .ply, .obj or .cao")
+    if not Path(args.camera).is_file():
+        raise CliError(f"--camera {args.camera}: no such file")
+    for option, value in (("--textured", args.textured), ("--init-pose", args.init_pose)):
+        if value is not None and not Path(value).is_file():
+            raise CliError(f"{option} {value}: no such file")
+    for option, value in (("--json", args.json), ("--csv", args.csv),
+                          ("--overlay", args.overlay)):  # fmt: skip
+        if value is not None and Path(value).is_dir():
+            raise CliError(f"cannot write {option} {value}: a directory")
+    if args.overlay is not None and Path(args.overlay).suffix.lower() != ".mp4":
+        raise CliError(f"--overlay must name a .mp4 file, got {args.overlay}")
+    if args.frames is not None and args.frames < 1:
+        raise CliError(f"--frames must be >= 1, got {args.frames}")
+    if args.no_reinit and args.init_pose is None:
+        raise CliError("--no-reinit needs --init-pose (the first frame is recognised otherwise)")
+    check_recording_args(args)
+
+
+class _Progress:
+    """A plain-text progress bar on stderr: redrawn in place on a terminal, a line every
+    tenth of the frames (or every 100 frames when their number is unknown) otherwise."""
+
+    def __init__(self, total: int | None, stream=None) -> None:
+        self.total, self.stream = total, stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.began, self.last = time.perf_counter(), -1
+
+    def update(self, done: int, lost: int) -> None:
+        total = self.total
+        step = max(total // 10, 1) if total else 100
+        finished = total is not None and done >= total
+        if not self.tty and not finished and done // step == self.last // step:
+            return
+        self.last = done
+        rate = done / max(time.perf_counter() - self.began, 1e-9)
+        if total:
+            filled = int(30 * min(done / total, 1.0))
+            bar = f"[{'#' * filled}{'.' * (30 - filled)}] {done}/{total}"
+        else:
+            bar = f"{done} frames"
+        line = f"tracking {bar}, {rate:.1f} frames/s, {lost} lost"
+        self.stream.write(("\r" + line) if self.tty else (line + "\n"))
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _row(r) -> dict[str, Any]:
+    """One frame of `--json`: OpenCV's pose (null when lost) and the tracker's figures."""
+    import cv2
+
+    rvec = tvec = None
+    if r.ok:
+        rvec = [float(x) for x in cv2.Rodrigues(r.R)[0].ravel()]
+        tvec = [float(x) for x in r.t]
+    return {"index": int(r.frame), "ok": bool(r.ok), "status": r.status, "rvec": rvec,
+            "tvec": tvec, "error_px": float(r.rms), "inliers": int(r.edges + r.points),
+            "ms": round(float(r.ms), 3)}  # fmt: skip
+
+
+def _write_json(path: str, rows: list[dict[str, Any]], console) -> None:
+    """`{"frames": [...]}`, one frame a line."""
+    out = Path(path)
+    text = '{"frames": [\n' + ",\n".join(json.dumps(row) for row in rows) + "\n]}\n"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text)
+    except OSError as exc:
+        raise CliError(f"cannot write --json {out}: {exc.strerror or exc}") from None
+    console.print(f"wrote {out}")
+
+
+def _write_csv(path: str, rows: list[dict[str, Any]], console) -> None:
+    import csv
+
+    out = Path(path)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with out.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(CSV_COLUMNS)
+            for row in rows:
+                pose = (row["rvec"] or [""] * 3) + (row["tvec"] or [""] * 3)
+                writer.writerow([row["index"], int(row["ok"]), row["status"], *pose,
+                                 row["error_px"], row["inliers"], row["ms"]])  # fmt: skip
+    except OSError as exc:
+        raise CliError(f"cannot write --csv {out}: {exc.strerror or exc}") from None
+    console.print(f"wrote {out}")
+
+
+def _reinit(args, mesh, K, dist):
+    """The re-initialisation: recognition (the JAX programs set up on first use)."""
+    from ..apps._reinit import recognition_reinit
+    from ..features._keypoints import read_textured_model
+
+    textured = None
+    if args.textured is not None:
+        try:
+            textured = read_textured_model(args.textured)
+        except ValueError as exc:
+            raise CliError(f"--textured {args.textured}: {exc}") from None
+    recognise = recognition_reinit(mesh, K, dist, textured=textured)
+    ready = False
+
+    def reinit(frame, index):
+        nonlocal ready
+        if not ready:
+            setup_jax(True)
+            ready = True
+        return recognise(frame, index)
+
+    return reinit
+
+
+def cmd_track(args) -> int:
+    """Run `jaxpose track` with the parsed `args`; returns the exit code (0: a pose on
+    every frame, 1: some frame lost, 2: bad input)."""
+    import cv2
+    import numpy as np
+
+    from ..apps._mesh_formats import read_mesh
+    from ..apps._track import track
+    from ..apps._visibility import mesh_geometry
+    from ..features._files import read_camera
+    from ..features._video import open_frames
+
+    console = new_console()
+    _check_args(args)
+    try:
+        K, dist = read_camera(args.camera)
+    except ValueError as exc:
+        raise CliError(f"--camera {args.camera}: {exc}") from None
+    dist = None if not np.any(dist) else dist
+    try:
+        mesh = read_mesh(args.model)
+    except ValueError as exc:
+        raise CliError(f"--model {args.model}: {exc}") from None
+    if len(mesh.faces) == 0:
+        raise CliError(f"--model {args.model}: the mesh has no faces")
+    geo = mesh_geometry(mesh)
+    initial = None
+    if args.init_pose is not None:
+        rvec, tvec = read_init_pose(args.init_pose)
+        initial = (cv2.Rodrigues(rvec.reshape(3, 1))[0], tvec)
+    try:
+        frames = open_frames(_source(args.input), stop=args.frames)
+    except ValueError as exc:
+        raise CliError(f"INPUT {args.input}: {str(exc).removeprefix('source: ')}") from None
+    try:
+        total: int | None = len(frames)
+    except TypeError:
+        total = None
+    reinit = None if args.no_reinit else _reinit(args, mesh, K, dist)
+
+    current: dict[str, np.ndarray] = {}
+
+    def feed():
+        for frame in frames:
+            current["frame"] = frame
+            yield frame
+
+    rec = writer = None
+    if wants_recording(args):
+        from ..viz._tracking import track_blueprint
+
+        rec = open_recording(args, f"jaxpose track {args.input}", track_blueprint())
+    rows: list[dict[str, Any]] = []
+    trajectory: list[np.ndarray] = []
+    progress = _Progress(total)
+    lost = 0
+    try:
+        for r in track(feed(), geo, K, dist, initial, reinit=reinit):
+            frame = current["frame"]
+            rows.append(_row(r))
+            lost += not r.ok
+            if args.overlay is not None:
+                from ..viz._tracking import draw_tracked
+
+                picture = draw_tracked(frame, geo, K, dist, r)
+                if writer is None:
+                    writer = _video_writer(args.overlay, frames, picture.shape[1::-1])
+                writer.write(picture)
+            if rec is not None:
+                from ..viz._tracking import log_track_camera, log_tracked_frame
+
+                if r.frame == 0:
+                    log_track_camera(rec, K, frame.shape[1::-1])
+                log_tracked_frame(rec, frame, r, geo, K, dist, trajectory)
+            progress.update(len(rows), lost)
+    except ValueError as exc:
+        raise CliError(f"INPUT {args.input}: {str(exc).removeprefix('source: ')}") from None
+    finally:
+        progress.close()
+        if writer is not None:
+            writer.release()
+        frames.close()
+    if not rows:
+        raise CliError(f"INPUT {args.input}: no frame could be read")
+    counts = {s: sum(row["status"] == s for row in rows)
+              for s in ("initialised", "tracked", "reinitialised", "lost")}  # fmt: skip
+    summary = f"{len(rows)} frames: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+    tracked = [row["ms"] for row in rows if row["status"] == "tracked"]
+    if tracked:
+        summary += (f"; tracker {np.median(tracked):.1f} ms per tracked frame (median), "
+                    f"{1e3 / max(float(np.mean(tracked)), 1e-9):.0f} frames/s (decoding "
+                    "excluded)")  # fmt: skip
+    console.print(summary)
+    if args.json:
+        _write_json(args.json, rows, console)
+    if args.csv:
+        _write_csv(args.csv, rows, console)
+    if args.overlay is not None:
+        console.print(f"wrote {args.overlay}")
+    if rec is not None:
+        finish_recording(args, console, rec)
+    return 0 if lost == 0 else 1
+
+
+def _video_writer(path: str, frames, size: tuple[int, int]):
+    import cv2
+
+    fps = frames.fps if math.isfinite(frames.fps) and frames.fps > 0 else 30.0
+    out = Path(path)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliError(f"cannot write --overlay {out}: {exc.strerror or exc}") from None
+    writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*"mp4v"), fps,
+                             (int(size[0]), int(size[1])))  # fmt: skip
+    if not writer.isOpened():
+        raise CliError(f"cannot write --overlay {out}: OpenCV could not open a video writer")
+    return writer
