@@ -35,11 +35,15 @@ from .geometry import observations as observations
 from .geometry import project as project
 from .geometry import rotvec_to_matrix as rotvec_to_matrix
 from .solvers import Status as Status
+from .strategy import Acceptance as Acceptance
+from .strategy import Execution as Execution
 from .strategy import MixedResult as MixedResult
 from .strategy import Options as Options
 from .strategy import PoseCovariance as PoseCovariance
 from .strategy import RobustOptions as RobustOptions
 from .strategy import RobustResult as RobustResult
+from .strategy import Search as Search
+from .strategy import Selection as Selection
 from .strategy import mixed as mixed
 from .strategy import pose_covariance as pose_covariance
 from .strategy import robust as robust

@@ -25,8 +25,12 @@ from ._mixed import mixed_from_initial as mixed_from_initial
 from ._mixed import mixed_from_initial_batch as mixed_from_initial_batch
 from ._options import METHODS as METHODS
 from ._options import TRACED as TRACED
+from ._options import Acceptance as Acceptance
+from ._options import Execution as Execution
 from ._options import Options as Options
 from ._options import RobustOptions as RobustOptions
+from ._options import Search as Search
+from ._options import Selection as Selection
 from ._options import resolve as resolve
 from ._options import split_values as split_values
 from ._options import with_values as with_values

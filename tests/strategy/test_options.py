@@ -149,3 +149,53 @@ def test_entry_points_reject_unknown_keywords():
             call()
     with pytest.raises(ValueError, match="method"):
         jp.solve(C, M, I, options=jp.Options(), method="sqpnp")
+
+
+def test_options_are_four_groups_by_concern():
+    """`Options` is made of its groups (selection, search, acceptance, execution), from
+    groups or single settings alike; a setting reads through and overrides its group."""
+    by_groups = jp.Options(
+        acceptance=jp.Acceptance(threshold=2.0), search=jp.Search(method="linear")
+    )
+    by_settings = jp.Options(threshold=2.0, method="linear")
+    assert by_groups == by_settings and hash(by_groups) == hash(by_settings)
+    assert by_groups.acceptance.threshold == by_groups.threshold == 2.0
+    assert by_groups.search.method == "linear" and by_groups.selection == jp.Selection()
+    assert by_groups.execution == jp.Execution()
+    # A setting given beside its group overrides that field of the group only.
+    o = jp.Options(search=jp.Search(method="linear", max_steps=7), max_steps=9)
+    assert (o.method, o.max_steps) == ("linear", 9)
+    # `dataclasses.replace` takes settings and groups.
+    assert dataclasses.replace(o, min_area=0.5).selection.min_area == 0.5
+    assert dataclasses.replace(o, execution=jp.Execution(chunk=4)).chunk == 4
+    # Every setting belongs to exactly one group, and the class reads the defaults.
+    from jaxpose.strategy._options import GROUP_OF
+
+    groups = (jp.Selection, jp.Search, jp.Acceptance, jp.Execution)
+    names = [f.name for g in groups for f in dataclasses.fields(g)]
+    assert len(names) == len(set(names)) == len(GROUP_OF) == 19
+    assert all(getattr(jp.Options, n) == getattr(jp.Options(), n) for n in names)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"acceptance": jp.Search()}, "acceptance"),
+        ({"selection": {"min_area": 1.0}}, "selection"),
+        ({"spread": 4}, "spread"),
+    ],
+)
+def test_bad_groups_are_named(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        jp.Options(**kwargs)
+    with pytest.raises(ValueError, match=name):
+        resolve(None, kwargs)
+
+
+def test_groups_check_their_settings():
+    with pytest.raises(ValueError, match="rel_threshold"):
+        jp.Acceptance(rel_threshold=-1.0)
+    with pytest.raises(ValueError, match="wider_spread"):
+        jp.Selection(wider_spread=2)
+    with pytest.raises(ValueError, match="derivative"):
+        jp.Execution(derivative=1)
