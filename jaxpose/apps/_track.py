@@ -499,11 +499,12 @@ def track(
         if reinit is None:
             raise ValueError("initial_pose may be None only with a reinit callable")
         K, dist, _, _ = _check_pose(K, dist, np.eye(3), np.array([0.0, 0.0, 1.0]))
-        R, t = None, None
+        start: tuple[np.ndarray, np.ndarray] | None = None
     elif not isinstance(initial_pose, tuple | list) or len(initial_pose) != 2:
         raise ValueError("initial_pose must be a pair (R, t) or None")
     else:
         K, dist, R, t = _check_pose(K, dist, *initial_pose)
+        start = (R, t)
     if reinit is not None and not callable(reinit):
         raise ValueError(f"reinit must be callable or None, got {type(reinit).__name__}")
     options = TrackOptions() if options is None else options
@@ -511,13 +512,12 @@ def track(
         raise ValueError(f"options must be a TrackOptions, got {type(options).__name__}")
 
     def run() -> Iterator[TrackedFrame]:
-        nonlocal R, t
+        pose = start  # the last pose held (None before the first)
         previous, size = None, None
         corners = _NO_CORNERS
         contrasts = _NO_CONTRAST
         last_seen, motion = None, None
-        usual: list[float] = []  # the RMS residuals of the last tracked frames
-        lost, held = R is None, False  # held: a pose was supported once
+        usual: list[float] = []  # the edges' RMS residuals of the last tracked frames
         for index, frame in enumerate(frames):
             grey = _grey(frame)
             grey8 = np.clip(grey, 0, 255).astype(np.uint8) if grey.dtype != np.uint8 else grey
@@ -526,47 +526,56 @@ def track(
             elif (grey.shape[1], grey.shape[0]) != size:
                 raise ValueError(f"frames must all have size {size}, got {grey.shape[::-1]}")
             began = time.perf_counter()
-            if not lost:
+            tried: _Fit | None = None  # the last fit made, reported when lost
+            good: _Fit | None = None  # the fit the frame supports
+            if pose is not None and last_seen is not None:  # tracking (the last frame held)
                 # KLT points from the previous frame; the pose predicted.
                 if previous is not None and len(corners.pixels) and options.use_points:
                     tracks = track_points(previous, grey8, corners.pixels,
                                           fb_threshold=options.fb_threshold)  # fmt: skip
                     corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
-                R_pred, t_pred = R, t
+                R_pred, t_pred = pose
                 if options.predict == "velocity" and motion is not None:
-                    R_pred, t_pred = _orthonormal(motion[0] @ R), motion[0] @ t + motion[1]
-                fit = _fit(grey, geo, K, dist, R_pred, t_pred, corners, contrasts, size, options)
-                status = "lost"
-                if _supported(fit, usual, options):
-                    status = "tracked" if held else "initialised"
+                    R_pred, t_pred = (
+                        _orthonormal(motion[0] @ R_pred),
+                        motion[0] @ t_pred + motion[1],
+                    )
+                tried = _fit(grey, geo, K, dist, R_pred, t_pred, corners, contrasts, size, options)
+                good = tried if _supported(tried, usual, options) else None
+                status = "tracked"
             else:
-                # Re-initialisation: from the pose the injected `reinit` gives, then from
-                # the last pose held; the first whose fit the frame supports.
-                starts = []
-                if reinit is not None:
-                    found = reinit(frame, index)
+                # (Re-)initialisation: from the given pose on the first frame; later from
+                # the pose the injected `reinit` gives, then from the last pose held; the
+                # first whose fit the frame supports.
+                starts = [] if pose is None or index else [pose]
+                if index and reinit is not None or pose is None:
+                    found = reinit(frame, index) if reinit is not None else None
                     if found is not None:
                         starts.append(_as_pose(found))
-                if R is not None:
-                    starts.append((R, t))
-                status, fit = "lost", None
+                if index and pose is not None:
+                    starts.append(pose)
                 for R_try, t_try in starts:
-                    fit = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, _NO_CONTRAST,
-                               size, options)  # fmt: skip
-                    if _supported(fit, usual, options):
-                        status = "reinitialised" if held else "initialised"
+                    tried = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, _NO_CONTRAST,
+                                 size, options)  # fmt: skip
+                    if _supported(tried, usual, options):
+                        good = tried
                         break
-            lost = status == "lost"
-            if lost:
-                # The pose held is the last supported one; what was carried is dropped.
+                status = "reinitialised" if usual else "initialised"
+            if good is None:
+                # Lost: the pose held is the last supported one; what was carried is dropped.
+                status = "lost"
                 corners, contrasts, last_seen, motion = _NO_CORNERS, _NO_CONTRAST, None, None
             else:
-                R0, t0 = R, t
-                R, t, held = fit.R, fit.t, True
-                motion = (R @ R0.T, t - R @ R0.T @ t0) if status == "tracked" else None
-                usual = (usual + [fit.judged])[-_HISTORY:]
+                R, t = good.R, good.t
+                if status == "tracked" and pose is not None:
+                    R0, t0 = pose
+                    motion = (R @ R0.T, t - R @ R0.T @ t0)
+                else:
+                    motion = None
+                pose = (R, t)
+                usual = (usual + [good.judged])[-_HISTORY:]
                 # An edge whose faces changed between seen and not changes its contrast.
-                table = fit.table
+                table = good.table
                 seen = facing(geo, R, t, options.grazing)
                 sides = np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
                 if last_seen is not None:
@@ -575,7 +584,7 @@ def track(
                     table = _Contrasts(table.keys[same], table.values[same])
                 contrasts, last_seen = table, sides
                 if status == "tracked" and len(corners.pixels):  # those the solve kept
-                    corners = _Corners(corners.pixels[fit.w_p > 0], corners.model[fit.w_p > 0])
+                    corners = _Corners(corners.pixels[good.w_p > 0], corners.model[good.w_p > 0])
                 elif status != "tracked":
                     corners = _NO_CORNERS
                 if options.recast and len(corners.pixels):
@@ -593,12 +602,11 @@ def track(
                         np.vstack([corners.model, hits.points[hits.hit]]),
                     )  # fmt: skip
             previous = grey8
-            edges = fit.edges if fit is not None else 0
-            points = fit.points if fit is not None else 0
-            rms = fit.rms if fit is not None else 0.0
-            R_out = np.eye(3) if R is None else R.copy()  # (no pose held yet)
-            t_out = np.zeros(3) if t is None else t.copy()
-            yield TrackedFrame(index, R_out, t_out, not lost, edges, points, rms,
-                               status, 1e3 * (time.perf_counter() - began))  # fmt: skip
+            shown = good if good is not None else tried
+            R_out, t_out = (np.eye(3), np.zeros(3)) if pose is None else pose  # (none yet)
+            yield TrackedFrame(index, R_out.copy(), t_out.copy(), good is not None,
+                               shown.edges if shown else 0, shown.points if shown else 0,
+                               shown.rms if shown else 0.0, status,
+                               1e3 * (time.perf_counter() - began))  # fmt: skip
 
     return run()

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..apps._track import TrackedFrame
 from ..apps._visibility import MeshGeometry, edge_samples
-from ._rerun_common import _rr
+from ._rerun_common import _rr, _strips3d
 
 if TYPE_CHECKING:  # pragma: no cover
     import rerun as rr
@@ -151,7 +151,7 @@ def log_tracked_frame(
     vertices = np.asarray(geo.model.vertices, np.float64)
     world = vertices @ result.R.T + result.t
     edges = np.asarray(geo.model.edges, np.int64).reshape(-1, 2)
-    rec.log("world/model", rr.LineStrips3D(world[edges], colors=colour))
+    rec.log("world/model", rr.LineStrips3D(_strips3d(world, edges), colors=colour))
     if result.ok:
         trajectory.append(vertices.mean(axis=0) @ result.R.T + result.t)
     if len(trajectory) >= 2:
