@@ -65,8 +65,8 @@ from ._textured import TexturedPose as TexturedPose
 from ._textured import locate_matches as locate_matches
 from ._textured import locate_textured as locate_textured
 from ._track import TrackedFrame as TrackedFrame
-from ._track import TrackOptions as TrackOptions
 from ._track import track as track
+from ._track_options import TrackOptions as TrackOptions
 from ._visibility import EdgeSamples as EdgeSamples
 from ._visibility import MeshGeometry as MeshGeometry
 from ._visibility import RayHits as RayHits

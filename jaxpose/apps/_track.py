@@ -40,7 +40,6 @@ Plain numpy and OpenCV per frame: one frame of 640 x 480 costs a few millisecond
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import NamedTuple
@@ -51,6 +50,7 @@ from ..features._klt import detect_corners, track_points
 from ..features._moving_edges import _grey, moving_edges
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
+from ._track_options import TrackOptions
 from ._visibility import (
     MeshGeometry,
     _check_pose,
@@ -61,132 +61,10 @@ from ._visibility import (
     mesh_geometry,
 )
 
-__all__ = ["TrackOptions", "TrackedFrame", "track"]
+__all__ = ["TrackedFrame", "track"]
 
 #: Tukey's biweight constant (95% efficiency under Gaussian noise).
 _TUKEY = 4.685
-
-
-@dataclasses.dataclass(frozen=True)
-class TrackOptions:
-    """The tracker's settings (defaults for a 640 x 480 video).
-
-    **Fields:**
-    - `spacing`: pixels between edge samples; `search`: the first search range (+-px);
-      `refine_search`: the range of the later rounds; `threshold`: the least derivative
-      of an edge (grey levels per pixel); `rounds`: edge measurements per frame.
-    - `max_corners`: KLT points kept at most; `min_corners`: top the set up below this;
-      `erode`: pixels kept away from the faces' borders when detecting;
-      `fb_threshold`: forward-backward check (px).
-    - `iterations`: Gauss-Newton steps per round; `min_scale`: the least robust scale
-      (px) of the residuals (below it, noise-free residuals would reject everything);
-      `min_rows`: the fewest measurement rows with a nonzero weight a pose needs (an
-      edge match gives one, a point two); with fewer, the frame keeps the previous
-      pose, `ok` False.
-    - `grazing`: faces seen at more than this angle (degrees) from their normal give
-      no edges (`edge_samples`); an edge whose faces change between seen and not
-      forgets its contrasts.
-    - `choose`: which image edge a sample takes (`moving_edges`'s `choose`).
-    - `ratio`: each sample expects the contrast (sign and size, within this factor) the
-      match nearest to it on the model had on the last frame (`moving_edges`'s
-      `contrast` and `ratio`); None: the sign only.
-    - `edges`: `"all"` the edges seen, or `"outline"` only those where the object meets
-      what lies behind it (for objects whose faces are alike, where creases hardly
-      show).
-    - `predict`: the first guess of a frame's pose: `"velocity"` (the last motion
-      repeated) or `"still"` (the last pose).
-    - `recast`: find the KLT points' model points again at every frame's pose (the
-      points then measure the motion from frame to frame, and their tracking drift does
-      not pile up in the model; the edges hold the pose to the model). False: once,
-      when a point is detected.
-    - `use_edges`, `use_points`: which measurements take part.
-    - `min_support`, `max_rms_ratio`, `min_rms`: when a frame's measurements support
-      its pose (otherwise the frame is `"lost"`): at least `min_rows` weighted rows, at
-      least `min_support` of the visible edge samples matched with a nonzero weight
-      (with edges), and a weighted RMS residual of the edges (of the points without
-      edges) at most `max_rms_ratio` times the median of the last tracked frames' (the
-      limit never below `min_rms` px).
-    """
-
-    spacing: float = 8.0
-    search: int = 12
-    refine_search: int = 4
-    threshold: float = 8.0
-    rounds: int = 2
-    max_corners: int = 200
-    min_corners: int = 60
-    erode: int = 6
-    fb_threshold: float = 1.0
-    iterations: int = 3
-    min_scale: float = 0.3
-    min_rows: int = 12
-    grazing: float = 90.0
-    choose: str = "strongest"
-    ratio: float | None = 2.0
-    edges: str = "all"
-    predict: str = "velocity"
-    recast: bool = True
-    use_edges: bool = True
-    use_points: bool = True
-    min_support: float = 0.3
-    max_rms_ratio: float = 3.0
-    min_rms: float = 1.0
-
-    def __post_init__(self) -> None:
-        for name, kind, bound in _CHECKS:
-            _check_field(name, getattr(self, name), kind, bound)
-
-
-#: Each field of `TrackOptions`, how it is checked and against what: `"int"` an int
-#: >= bound, `"number"` a number > bound, `"choice"` one of bound, `"bool"` a bool,
-#: `"ratio"` None or a number > bound, `"angle"` a number in (0, bound].
-_CHECKS: tuple[tuple[str, str, object], ...] = (
-    ("spacing", "number", 0),
-    ("search", "int", 2),
-    ("refine_search", "int", 2),
-    ("threshold", "number", 0),
-    ("rounds", "int", 1),
-    ("max_corners", "int", 1),
-    ("min_corners", "int", 0),
-    ("erode", "int", 0),
-    ("fb_threshold", "number", 0),
-    ("iterations", "int", 1),
-    ("min_scale", "number", 0),
-    ("min_rows", "int", 0),
-    ("grazing", "angle", 90),
-    ("choose", "choice", ("strongest", "nearest")),
-    ("ratio", "ratio", 1),
-    ("edges", "choice", ("all", "outline")),
-    ("predict", "choice", ("velocity", "still")),
-    ("recast", "bool", None),
-    ("use_edges", "bool", None),
-    ("use_points", "bool", None),
-    ("min_support", "fraction", None),
-    ("max_rms_ratio", "number", 1),
-    ("min_rms", "number", 0),
-)
-
-
-def _check_field(name: str, value, kind: str, bound) -> None:
-    """ValueError naming `options.<name>` when `value` is not of its `kind` within
-    `bound` (see `_CHECKS`)."""
-    number = not isinstance(value, bool) and isinstance(value, int | float)
-    if kind == "int":
-        good, want = number and isinstance(value, int) and value >= bound, f"an int >= {bound}"
-    elif kind == "number":
-        good, want = number and value > bound, f"a number > {bound}"
-    elif kind == "choice":
-        good, want = value in bound, f"one of {bound}"
-    elif kind == "bool":
-        good, want = isinstance(value, bool), "a bool"
-    elif kind == "fraction":
-        good, want = number and 0 <= value <= 1, "a number in [0, 1]"
-    elif kind == "ratio":
-        good, want = value is None or (number and value > bound), f"> {bound} or None"
-    else:  # "angle"
-        good, want = number and 0 < value <= bound, f"in (0, {bound}]"
-    if not good:
-        raise ValueError(f"options.{name} must be {want}, got {value!r}")
 
 
 class TrackedFrame(NamedTuple):

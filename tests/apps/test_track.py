@@ -12,6 +12,7 @@ from jaxpose.apps import (
     mesh_geometry,
     noise_texture,
     read_ply,
+    recognition_reinit,
     render,
     render_sequence,
     sample_path,
@@ -162,6 +163,12 @@ def test_bad_arguments():
     frames = [np.zeros((48, 64), np.uint8), np.zeros((40, 64), np.uint8)]
     with pytest.raises(ValueError, match="frames"):
         list(track(frames, GEO, K, None, (R, t)))
+    with pytest.raises(ValueError, match="model"):
+        recognition_reinit("box", K)
+    with pytest.raises(ValueError, match="textured"):
+        recognition_reinit(GEO, K, textured=BOX)
+    with pytest.raises(ValueError, match="camera_matrix"):
+        recognition_reinit(BOX, np.eye(4))
 
 
 # Re-initialisation after a full occlusion: a small image (480 x 360) and a cheap
