@@ -263,6 +263,45 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
     return samples.points[keep], lines, keys[keep], found.strength[keep], int(wanted.sum())
 
 
+def _sides(geo: MeshGeometry, R, t, grazing: float) -> np.ndarray:
+    """`(E, 2)` bool: whether each edge's two faces are seen at pose `(R, t)` (False
+    where an edge has no second face)."""
+    seen = facing(geo, R, t, grazing)
+    return np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
+
+
+def _unchanged(table: _Contrasts, old_sides, sides: np.ndarray) -> _Contrasts:
+    """The entries of `table` (contrasts measured where the faces were seen as
+    `old_sides`) on edges whose faces are seen as they were: an edge whose faces changed
+    between seen and not changes its contrast."""
+    if old_sides is None or len(table.keys) == 0:
+        return table
+    changed = np.any(sides != old_sides, axis=1)
+    same = ~changed[np.floor(table.keys).astype(int)]
+    return _Contrasts(table.keys[same], table.values[same])
+
+
+def _symmetries(geo: MeshGeometry) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The model's half-turn symmetries about its principal axes through its vertex
+    centroid `c`, as `(S, c)` with `S (m - c) + c` mapping the vertices onto themselves
+    (a box has three: seen by its edges alone, each is the same object). None for
+    models of over 4,000 vertices (not searched)."""
+    vertices = np.asarray(geo.model.vertices, np.float64)
+    if len(vertices) > 4000 or len(vertices) < 3:
+        return []
+    c = vertices.mean(axis=0)
+    X = vertices - c
+    tol = 1e-6 * max(float(np.ptp(vertices, axis=0).max()), 1e-300)
+    out = []
+    for axis in np.linalg.eigh(X.T @ X)[1].T:
+        S = 2 * np.outer(axis, axis) - np.eye(3)
+        moved = X @ S.T
+        if all(np.linalg.norm(X[None] - moved[i : i + 256, None], axis=2).min(axis=1).max()
+               <= tol for i in range(0, len(X), 256)):  # fmt: skip
+            out.append((S, c))
+    return out
+
+
 class _Fit(NamedTuple):
     """One frame's pose fitted from a start: the pose, whether the solve ran, the
     weighted edge matches and points, the RMS residual, the edges' contrast table, the
@@ -389,12 +428,15 @@ def track(
     if not isinstance(options, TrackOptions):
         raise ValueError(f"options must be a TrackOptions, got {type(options).__name__}")
 
+    symmetries = _symmetries(geo) if reinit is not None else []
+
     def run() -> Iterator[TrackedFrame]:
         pose = start  # the last pose held (None before the first)
         previous, size = None, None
         corners = _NO_CORNERS
         contrasts = _NO_CONTRAST
         last_seen, motion = None, None
+        memory: tuple[_Contrasts, np.ndarray] | None = None  # the last held frame's
         usual: list[float] = []  # the edges' RMS residuals of the last tracked frames
         for index, frame in enumerate(frames):
             grey = _grey(frame)
@@ -423,21 +465,33 @@ def track(
                 status = "tracked"
             else:
                 # (Re-)initialisation: from the given pose on the first frame; later from
-                # the pose the injected `reinit` gives, then from the last pose held; the
-                # first whose fit the frame supports.
+                # the pose the injected `reinit` gives (and its symmetric variants: the
+                # same edges, told apart by the contrasts remembered from the last frame
+                # held), then from the last pose held; of the fits the frame supports,
+                # the one with the most edge matches of a remembered contrast (then the
+                # most edge matches).
                 starts = [] if pose is None or index else [pose]
                 if index and reinit is not None or pose is None:
                     found = reinit(frame, index) if reinit is not None else None
                     if found is not None:
-                        starts.append(_as_pose(found))
+                        R_found, t_found = _as_pose(found)
+                        starts.append((R_found, t_found))
+                        for S, c in symmetries if memory is not None else []:
+                            starts.append((R_found @ S, t_found + R_found @ (c - S @ c)))
                 if index and pose is not None:
                     starts.append(pose)
+                best = (-1, -1)
                 for R_try, t_try in starts:
-                    tried = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, _NO_CONTRAST,
-                                 size, options)  # fmt: skip
-                    if _supported(tried, usual, options):
-                        good = tried
-                        break
+                    table = _NO_CONTRAST
+                    if memory is not None:
+                        sides = _sides(geo, R_try, t_try, options.grazing)
+                        table = _unchanged(memory[0], memory[1], sides)
+                    tried = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, table, size,
+                                 options)  # fmt: skip
+                    # Told apart by the matches that kept a remembered contrast.
+                    score = (np.count_nonzero(_expected(table, tried.table.keys)), tried.edges)
+                    if _supported(tried, usual, options) and (good is None or score > best):
+                        good, best = tried, score
                 status = "reinitialised" if usual else "initialised"
             if good is None:
                 # Lost: the pose held is the last supported one; what was carried is dropped.
@@ -452,15 +506,9 @@ def track(
                     motion = None
                 pose = (R, t)
                 usual = (usual + [good.judged])[-_HISTORY:]
-                # An edge whose faces changed between seen and not changes its contrast.
-                table = good.table
-                seen = facing(geo, R, t, options.grazing)
-                sides = np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
-                if last_seen is not None:
-                    changed = np.any(sides != last_seen, axis=1)
-                    same = ~changed[np.floor(table.keys).astype(int)]
-                    table = _Contrasts(table.keys[same], table.values[same])
-                contrasts, last_seen = table, sides
+                sides = _sides(geo, R, t, options.grazing)
+                contrasts, last_seen = _unchanged(good.table, last_seen, sides), sides
+                memory = (contrasts, sides)
                 if status == "tracked" and len(corners.pixels):  # those the solve kept
                     corners = _Corners(corners.pixels[good.w_p > 0], corners.model[good.w_p > 0])
                 elif status != "tracked":
