@@ -63,12 +63,13 @@ def solve(
     - `model`: `(n, 3)` model points `m_i`, `n >= 3`.
     - `image`: `(n, 2)` pixels matched to them.
     - `mask`: optional `(n,)` bool, which matches to use (fixed shapes with padding).
-    - `options`: a `jaxpose.Options` (default `Options()`): the method (`"mixed"`,
-      `"three_point"`, `"linear"` or `"nonlinear"`, the last two started from every
-      triplet's three-point pose, as in the paper's experiment), the acceptance
-      threshold, the triplets used (`max_triplets`, `triplet_budget`: the fast path for
-      large batches of easy problems), the mixed algorithm's budgets. A static argument
-      under `jax.jit` (hashable).
+    - `options`: a `jaxpose.Options` (default `Options()`), by concern: `search` (the
+      method, `"mixed"`, `"three_point"`, `"linear"` or `"nonlinear"`, the last two
+      started from every triplet's three-point pose, as in the paper's experiment; the
+      mixed algorithm's budgets), `acceptance` (the threshold), `selection` (the
+      triplets used: `max_triplets`, `triplet_budget`, the fast path for large batches
+      of easy problems), `execution` (the derivative, the buffer). A static argument
+      under `jax.jit` (hashable); its thresholds and tolerances are values.
     - `initial`: `None`, or a `Pose` `(R (3, 3), t (3,))` (model to world) to start
       from instead of the three-point roots: the paper's small-movement linear method
       (Section 2.2) from it, then, with the mixed method, Levenberg-Marquardt where it
@@ -76,7 +77,7 @@ def solve(
       answer near it: no other roots or planar partner are tried;
       `jaxpose.strategy._start`). Its `triplet` is then `(0, 1, 2)`. A value, not
       structure: another initial pose compiles nothing.
-    - `**changes`: keyword shorthands for fields of `options`, e.g.
+    - `**changes`: keyword shorthands for settings (or groups) of `options`, e.g.
       `solve(C, M, I, method="linear", threshold=2.0)`; an unknown one raises
       `ValueError`.
 
