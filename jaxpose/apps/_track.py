@@ -460,6 +460,13 @@ def track(
                         _orthonormal(motion[0] @ R_pred),
                         motion[0] @ t_pred + motion[1],
                     )
+                elif options.predict == "velocity" and len(corners.pixels) >= 3:
+                    # No motion yet (just (re)initialised): the KLT points alone predict.
+                    meas = _Measurements(np.zeros((0, 3)), np.zeros((0, 3)), corners.model,
+                                         _undistort(corners.pixels, K, dist))  # fmt: skip
+                    R1, t1, *_, moved = _solve(R_pred, t_pred, K, meas, options)
+                    if moved and np.all(np.isfinite(t1)):
+                        R_pred, t_pred = R1, t1
                 tried = _fit(grey, geo, K, dist, R_pred, t_pred, corners, contrasts, size, options)
                 good = tried if _supported(tried, usual, options) else None
                 status = "tracked"

@@ -35,7 +35,8 @@ class TrackOptions:
       what lies behind it (for objects whose faces are alike, where creases hardly
       show).
     - `predict`: the first guess of a frame's pose: `"velocity"` (the last motion
-      repeated) or `"still"` (the last pose).
+      repeated; with no motion yet, just after a (re)initialisation, the pose the KLT
+      points alone give) or `"still"` (the last pose).
     - `recast`: find the KLT points' model points again at every frame's pose (the
       points then measure the motion from frame to frame, and their tracking drift does
       not pile up in the model; the edges hold the pose to the model). False: once,
