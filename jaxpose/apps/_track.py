@@ -34,6 +34,14 @@ The edges are measured again from the refined pose (`rounds` times, the search r
 shrinking to `refine_search`). Distortion is removed from the measurements first
 (`cv2.undistortPoints`), so the solve is that of a pinhole camera.
 
+Each frame's status is honest: a frame whose measurements do not support the pose
+(`TrackOptions`: too few weighted rows, too few of the visible edge samples matched, or
+the edges' residual far above the last tracked frames') is `"lost"` and holds the last
+pose; the next frames are fitted afresh from what an injected `reinit` finds (e.g.
+recognition, `recognition_reinit`), with the model's half-turn symmetries (which edges
+alone cannot tell apart; the contrasts remembered from the last frame held pick one),
+and from the last pose held, until one is supported (`"reinitialised"`).
+
 Plain numpy and OpenCV per frame: one frame of 640 x 480 costs a few milliseconds
 (see `benchmarks/frontend.py`).
 """
