@@ -271,6 +271,8 @@ def cmd_track(args) -> int:
             progress.update(len(rows), lost)
     except ValueError as exc:
         raise CliError(f"INPUT {args.input}: {str(exc).removeprefix('source: ')}") from None
+    except KeyboardInterrupt:  # Ctrl-C (a live camera): the frames so far are written
+        console.print(f"interrupted after {len(rows)} frames")
     finally:
         progress.close()
         if writer is not None:

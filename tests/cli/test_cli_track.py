@@ -230,3 +230,27 @@ def test_bad_input_is_one_line(sequence, tmp_path, capsys):
         lines = err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("jaxpose"), f"{case}: {err}"
         assert needle in err, f"{case}: {err}"
+
+
+def test_interrupted_run_writes_what_it_tracked(sequence, capsys, monkeypatch):
+    # Ctrl-C on the fourth frame (a live camera is stopped so): the three frames tracked
+    # are written.
+    from jaxpose.features import _video
+
+    iterate = _video.Frames.__iter__
+
+    def stopped(self):
+        for i, frame in enumerate(iterate(self)):
+            if i == 3:
+                raise KeyboardInterrupt
+            yield frame
+
+    monkeypatch.setattr(_video.Frames, "__iter__", stopped)
+    out = sequence["tmp"] / "stopped.json"
+    rc = main(["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
+               str(sequence["camera"]), "--init-pose", str(sequence["pose"]), "--no-reinit",
+               "--json", str(out)])  # fmt: skip
+    stdout = capsys.readouterr().out
+    assert rc == 0 and "interrupted after 3 frames" in stdout
+    assert [f["status"] for f in json.loads(out.read_text())["frames"]] == [
+        "initialised", "tracked", "tracked"]  # fmt: skip
