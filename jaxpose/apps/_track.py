@@ -35,9 +35,11 @@ shrinking to `refine_search`). Distortion is removed from the measurements first
 (`cv2.undistortPoints`), so the solve is that of a pinhole camera.
 
 Each frame's status is honest: a frame whose measurements do not support the pose
-(`TrackOptions`: too few weighted rows, too few of the visible edge samples matched, or
-the edges' residual far above the last tracked frames') is `"lost"` and holds the last
-pose; the next frames are fitted afresh from what an injected `reinit` finds (e.g.
+(`TrackOptions`: too few weighted rows, too few of the visible edge samples matched,
+too short a length of matched edges (a small projection of the model fits clutter by
+chance), or the edges' residual far above the last tracked frames') is `"lost"` and
+holds the last pose; the next frames are fitted afresh from what an injected `reinit`
+finds (at most one try every `reinit_every` frames and `reinit_wait` seconds; e.g.
 recognition, `recognition_reinit`), with the model's half-turn symmetries (which edges
 alone cannot tell apart; the contrasts remembered from the last frame held pick one),
 and from the last pose held, until one is supported (`"reinitialised"`).
@@ -362,8 +364,10 @@ _HISTORY = 15
 
 def _supported(fit: _Fit, usual: list[float], options: TrackOptions) -> bool:
     """Whether a frame's measurements support its fitted pose (`TrackOptions`'s
-    `min_rows`, `min_support`, `max_rms_ratio`, `min_rms`)."""
+    `min_rows`, `min_support`, `min_edge_length`, `max_rms_ratio`, `min_rms`)."""
     if not fit.ok or fit.support < options.min_support:
+        return False
+    if options.use_edges and fit.edges * options.spacing < options.min_edge_length:
         return False
     if not usual:
         return True
@@ -409,13 +413,15 @@ def track(
     - `options`: `TrackOptions`.
     - `reinit`: `reinit(frame, index) -> (R or rvec, t) or None`, a pose of the object
       in a frame found afresh (e.g. `recognition_reinit`: recognition from the mesh).
-      After a lost frame, each following frame is fitted from the pose it gives, then
-      from the last pose held, until one is supported (`"reinitialised"`); None: from
-      the last pose held only (the object must come back near where it was lost).
+      After a lost frame, each following frame is fitted from the pose it gives (on
+      the frames `options.reinit_every` and `options.reinit_wait` allow), then from the
+      last pose held, until one is supported (`"reinitialised"`); None: from the last
+      pose held only (the object must come back near where it was lost).
 
     **Returns:** a generator of `TrackedFrame`, one per frame: a frame whose
     measurements do not support the pose is `"lost"` (`TrackOptions`: `min_rows`,
-    `min_support`, `max_rms_ratio`), never `"tracked"`.
+    `min_support`, `min_edge_length`, `max_rms_ratio`), never `"tracked"`; a pose
+    `reinit` gives that the frame does not support is not taken.
 
     **Raises:** `ValueError` naming the argument (the frames' when they are iterated).
     """
@@ -445,6 +451,7 @@ def track(
         contrasts = _NO_CONTRAST
         last_seen, motion = None, None
         memory: tuple[_Contrasts, np.ndarray] | None = None  # the last held frame's
+        tried_at: tuple[int, float] | None = None  # reinit's last try: frame, end time
         usual: list[float] = []  # the edges' RMS residuals of the last tracked frames
         for index, frame in enumerate(frames):
             grey = _grey(frame)
@@ -486,8 +493,13 @@ def track(
                 # the one with the most edge matches of a remembered contrast (then the
                 # most edge matches).
                 starts = [] if pose is None or index else [pose]
-                if index and reinit is not None or pose is None:
+                due = tried_at is None or (
+                    index - tried_at[0] >= options.reinit_every
+                    and time.perf_counter() - tried_at[1] >= options.reinit_wait
+                )  # (throttled: `reinit_every` frames and `reinit_wait` s between tries)
+                if (index and reinit is not None or pose is None) and due:
                     found = reinit(frame, index) if reinit is not None else None
+                    tried_at = (index, time.perf_counter())
                     if found is not None:
                         R_found, t_found = _as_pose(found)
                         starts.append((R_found, t_found))

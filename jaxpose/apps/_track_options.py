@@ -48,6 +48,19 @@ class TrackOptions:
       (with edges), and a weighted RMS residual of the edges (of the points without
       edges) at most `max_rms_ratio` times the median of the last tracked frames' (the
       limit never below `min_rms` px).
+    - `min_edge_length`: the least length (px) of the model's visible edges matched
+      (matched samples times `spacing`) that supports a pose (with edges). A small
+      projection of the model fits clutter by chance (on `box.mp4`, recognition from
+      the mesh found the box four times too far, fitted to the printed lines of its
+      face: 54-81% of its visible samples matched, as at the right pose (67-73%), but
+      13-24 samples against 102-122), so a pose measured on less is not supported; the fraction
+      alone cannot tell it from the true object, which has as many more samples as it
+      is larger.
+    - `reinit_every`, `reinit_wait`: after a lost frame, `reinit` is tried on a frame
+      only when at least `reinit_every` frames and `reinit_wait` seconds have passed
+      since the end of its last try (the frames between are fitted from the last pose
+      held, which is cheap): recognition takes about a second a try, so on a live
+      stream a lost track would otherwise hold every frame that long.
     """
 
     spacing: float = 8.0
@@ -73,6 +86,9 @@ class TrackOptions:
     min_support: float = 0.3
     max_rms_ratio: float = 3.0
     min_rms: float = 1.0
+    min_edge_length: float = 320.0
+    reinit_every: int = 1
+    reinit_wait: float = 0.0
 
     def __post_init__(self) -> None:
         for name, kind, bound in _CHECKS:
@@ -81,7 +97,8 @@ class TrackOptions:
 
 #: Each field of `TrackOptions`, how it is checked and against what: `"int"` an int
 #: >= bound, `"number"` a number > bound, `"choice"` one of bound, `"bool"` a bool,
-#: `"ratio"` None or a number > bound, `"angle"` a number in (0, bound].
+#: `"ratio"` None or a number > bound, `"angle"` a number in (0, bound], `"length"` a
+#: finite number >= 0.
 _CHECKS: tuple[tuple[str, str, object], ...] = (
     ("spacing", "number", 0),
     ("search", "int", 2),
@@ -106,6 +123,9 @@ _CHECKS: tuple[tuple[str, str, object], ...] = (
     ("min_support", "fraction", None),
     ("max_rms_ratio", "number", 1),
     ("min_rms", "number", 0),
+    ("min_edge_length", "length", None),
+    ("reinit_every", "int", 1),
+    ("reinit_wait", "length", None),
 )
 
 
@@ -123,6 +143,8 @@ def _check_field(name: str, value, kind: str, bound) -> None:
         good, want = isinstance(value, bool), "a bool"
     elif kind == "fraction":
         good, want = number and 0 <= value <= 1, "a number in [0, 1]"
+    elif kind == "length":
+        good, want = number and 0 <= value < float("inf"), "a finite number >= 0"
     elif kind == "ratio":
         good, want = value is None or (number and value > bound), f"> {bound} or None"
     else:  # "angle"

@@ -201,6 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--frames", type=int, metavar="N", help="the first N frames only")
     tr.add_argument("--no-reinit", action="store_true", help="no recognition after a lost "
                     "frame (the last pose is tried again; needs --init-pose)")  # fmt: skip
+    tr.add_argument("--reinit-every", type=int, default=1, metavar="K", help="after a lost "
+                    "frame, recognise on one frame in K at most (default 1)")  # fmt: skip
+    tr.add_argument("--reinit-wait", type=float, metavar="SECONDS", help="and only SECONDS "
+                    "after the last try ended (default 1 for a camera, else 0)")  # fmt: skip
     add_recording_options(tr)
     tr.set_defaults(func=cmd_track)
     w = sub.add_parser(

@@ -90,6 +90,10 @@ def _check_args(args) -> None:
         raise CliError(f"--overlay must name a .mp4 file, got {args.overlay}")
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be >= 1, got {args.frames}")
+    if args.reinit_every < 1:
+        raise CliError(f"--reinit-every must be >= 1, got {args.reinit_every}")
+    if args.reinit_wait is not None and not 0 <= args.reinit_wait < math.inf:
+        raise CliError(f"--reinit-wait must be a finite number >= 0, got {args.reinit_wait}")
     if args.no_reinit and args.init_pose is None:
         raise CliError("--no-reinit needs --init-pose (the first frame is recognised otherwise)")
     check_recording_args(args)
@@ -202,6 +206,7 @@ def cmd_track(args) -> int:
 
     from ..apps._mesh_formats import read_mesh
     from ..apps._track import track
+    from ..apps._track_options import TrackOptions
     from ..apps._visibility import mesh_geometry
     from ..features._files import read_camera
     from ..features._video import open_frames
@@ -233,6 +238,12 @@ def cmd_track(args) -> int:
     except TypeError:
         total = None
     reinit = None if args.no_reinit else _reinit(args, mesh, K, dist)
+    # On a live camera a try at recognition (about a second) holds the stream: one try
+    # a second at most unless told otherwise.
+    wait = args.reinit_wait
+    if wait is None:
+        wait = 1.0 if isinstance(_source(args.input), int) else 0.0
+    options = TrackOptions(reinit_every=args.reinit_every, reinit_wait=wait)
 
     current: dict[str, np.ndarray] = {}
 
@@ -251,7 +262,7 @@ def cmd_track(args) -> int:
     progress = _Progress(total)
     lost = 0
     try:
-        for r in track(feed(), geo, K, dist, initial, reinit=reinit):
+        for r in track(feed(), geo, K, dist, initial, options=options, reinit=reinit):
             frame = current["frame"]
             rows.append(_row(r))
             lost += not r.ok

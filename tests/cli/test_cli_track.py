@@ -148,6 +148,13 @@ def test_first_frame_recognised_and_no_reinit(sequence, capsys, monkeypatch):
     assert rc == 1
     status = [f["status"] for f in json.loads(out.read_text())["frames"]]
     assert [status[i] for i in HIDDEN] == ["lost"] * 3
+    # Recognition throttled: one try in two frames at most while lost.
+    asked.clear()
+    rc = main(["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
+               str(sequence["camera"]), "--init-pose", str(sequence["pose"]),
+               "--reinit-every", "2"])  # fmt: skip
+    capsys.readouterr()
+    assert asked and all(b - a >= 2 for a, b in zip(asked, asked[1:]))
 
 
 def test_box_video_from_a_given_pose(tmp_path, capsys):
@@ -215,6 +222,8 @@ def test_bad_input_is_one_line(sequence, tmp_path, capsys):
             [folder, "--model", str(MESH), "--camera", camera, "--no-reinit"],
             "--init-pose",
         ),  # fmt: skip
+        "reinit every": ([folder, *good, "--reinit-every", "0"], "--reinit-every"),
+        "reinit wait": ([folder, *good, "--reinit-wait", "-1"], "--reinit-wait"),
         "rrd suffix": ([folder, *good, "--rrd", str(tmp_path / "x.txt")], ".rrd"),
         "json dir": ([folder, *good, "--json", str(tmp_path)], "--json"),
         "no camera": ([folder, "--model", str(MESH)], "--camera"),
