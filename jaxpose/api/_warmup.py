@@ -33,7 +33,7 @@ __all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_pla
 #: The point buckets `warm_up` builds by default: every `n` from 4 to 64.
 DEFAULT_POINTS = POINT_BUCKETS[:4]
 #: The batch chunks `warm_up` builds by default for `solve_pnp_batch`: none (a batch
-#: compiles its chunk sizes on first use; name them, e.g. `(16, 4096)`, to build them).
+#: compiles its chunk sizes on first use; name them, e.g. `(16, 2048)`, to build them).
 DEFAULT_BATCHES: tuple[int, ...] = ()
 
 
