@@ -1,13 +1,12 @@
 """Drop-in for `cv2.solvePnPGeneric`: every distinct local minimum of Eq. 8 that jaxpose
 finds, sorted by reprojection error, in OpenCV's conventions.
 
-A coplanar model has two poses that image it nearly alike (the planar ambiguity; IPPE's
-two solutions): `solve_pnp`'s answer is the better of them (the mixed algorithm refines
-the planar partner of its answer and keeps the better, the paper's Section 3 with
-`Options.planar_partner`). Here the other one is reported too: the planar partner of the
-answer (`jaxpose.strategy.planar_partner`) is refined from where it is by the paper's
-small-movement linear method and Levenberg-Marquardt (`jaxpose.solve`'s `initial`), and
-kept when it converges to a local minimum distinct from the answer.
+The first is `solve_pnp`'s answer. The others come from the starts of
+`jaxpose.strategy.local_minima`, refined each to its own local minimum in one batched
+program (`_minima_opencv`): for a coplanar model the answer's planar partner and the two
+poses of the plane's homography (IPPE's two, `jaxpose.strategy.planar_poses`), and for
+any model the best-scored distinct three-point roots of the answer's triplets. A minimum
+is kept when its run is accepted and it is distinct from those kept before it.
 """
 
 from __future__ import annotations
@@ -21,32 +20,20 @@ import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
 
-from ..geometry import (
-    Pose,
-    camera_matrix,
-    matrix_to_rotvec,
-    no_type_check,
-    observations,
-    rotvec_to_matrix,
-)
-from ..strategy import Options, planar_partner, split_values, with_values
+from ..geometry import Pose, camera_matrix, matrix_to_rotvec, no_type_check, rotvec_to_matrix
+from ..strategy import SAME_MINIMUM, Options, local_minima, split_values, with_values
 from ._pnp import _pack, answer_opencv, opencv_problem, refine_opencv
 from ._programs import program
-from ._solve import solve
 
 __all__ = ["solve_pnp_generic"]
 
-#: Two local minima closer than this (rotation, rad; translation, relative to its
-#: length) are one.
-SAME_MINIMUM = 1e-4
 
-
-def _partner_opencv(packed, options: Options):
-    """The planar partner of the pose `(rvec, tvec)`, refined (the program of
-    `solve_pnp_generic`): `packed` the traced values (4), `rvec`, `tvec`, then
-    `_pack`'s vector. Returns `(ok, rvec, tvec)` as one vector of 7; `ok` False for a
-    model that is not coplanar or a partner that does not converge."""
-    start = Pose(rotvec_to_matrix(packed[4:7]), packed[7:10])
+def _minima_opencv(packed, options: Options):
+    """The other local minima of the problem whose answer is `(rvec, tvec)` (the program
+    of `solve_pnp_generic`; `jaxpose.strategy.local_minima`): `packed` the traced values
+    (4), `rvec`, `tvec`, then `_pack`'s vector. Returns `(found, rvec, tvec)` of each
+    start, one row of 7 each (`found` 1 for a distinct minimum, 0 for a placeholder)."""
+    answer = Pose(rotvec_to_matrix(packed[4:7]), packed[7:10])
     options = with_values(options, packed[:4])
     packed = packed[10:]
     n = (packed.shape[0] - 9) // 6
@@ -54,11 +41,10 @@ def _partner_opencv(packed, options: Options):
     obj = packed[9 : 9 + 3 * n].reshape(n, 3)
     img = packed[9 + 3 * n : 9 + 5 * n].reshape(n, 2)
     mask = packed[9 + 5 * n :] > 0.5
-    C = camera_matrix(K)
-    partner, flat = planar_partner(observations(C, obj, img, mask), start)
-    sol = solve(C, obj, img, mask, options=options, initial=partner)
-    ok = (flat & sol.accepted).astype(packed.dtype)[None]
-    return jnp.concatenate([ok, matrix_to_rotvec(sol.pose.R), sol.pose.t])
+    minima = local_minima(camera_matrix(K), obj, img, mask, answer, options)
+    found = minima.found.astype(packed.dtype)[:, None]
+    rvecs = jax.vmap(matrix_to_rotvec)(minima.pose.R)
+    return jnp.concatenate([found, rvecs, minima.pose.t], axis=1)
 
 
 def _same(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> bool:
@@ -85,12 +71,15 @@ def solve_pnp_generic(
     """Drop-in for `cv2.solvePnPGeneric`: every distinct local minimum found, best first.
 
     Arguments as `solve_pnp` (OpenCV's, in its order; `options`, `**changes` as
-    `jaxpose.solve`). The first pose is `solve_pnp`'s answer; for a coplanar model the
-    second is the other pose of the planar ambiguity (module docstring), refined to its
-    own local minimum of Eq. 8, when it converges to one distinct from the first (two
-    poses within `SAME_MINIMUM` are one). After refinement these are the poses of
-    `cv2.solvePnPGeneric(..., flags=cv2.SOLVEPNP_IPPE)` refined by
-    `cv2.solvePnPRefineLM`. A non-coplanar model has one.
+    `jaxpose.solve`). The first pose found is `solve_pnp`'s answer; the others are the
+    distinct local minima of Eq. 8 reached from the starts of
+    `jaxpose.strategy.local_minima` (module docstring; with `dist_coeffs` each is then
+    refined in the image, as the answer is; two poses within `SAME_MINIMUM` are one).
+    For a coplanar model they hold the poses of `cv2.solvePnPGeneric(...,
+    flags=cv2.SOLVEPNP_IPPE)` refined to their minima (on all of 1,000 planar problems,
+    `benchmarks/opencv_cases.py`), and for four matches the refined P3P roots of
+    `cv2.solvePnPGeneric(..., flags=cv2.SOLVEPNP_P3P)` that are local minima.
+    `method="three_point"`: the answer alone.
 
     **Returns:** `(count, rvecs, tvecs, reprojection_errors)` as OpenCV's: `count` the
     number of poses (`0` when `solve_pnp` accepts none), `rvecs`, `tvecs` tuples of
@@ -119,12 +108,13 @@ def solve_pnp_generic(
         head = np.concatenate([values, out[1:7]])
         packed = np.concatenate([head, _pack(K, problem.obj, problem.img, problem.mask)])
         with jax.enable_x64(True):
-            out = np.array(program(_partner_opencv, key)(packed))
-        if out[0] and problem.dist is not None:
-            out[1:] = refine_opencv(problem, out[1:4], out[4:7])
-        other = (out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy())
-        if out[0] and np.all(np.isfinite(out)) and not _same(poses[0], other):
-            poses.append(other)
+            rows = np.array(program(_minima_opencv, key)(packed))
+        for row in rows[rows[:, 0] > 0.5]:
+            if problem.dist is not None:
+                row[1:] = refine_opencv(problem, row[1:4], row[4:7])
+            other = (row[1:4].reshape(3, 1).copy(), row[4:7].reshape(3, 1).copy())
+            if np.all(np.isfinite(row)) and not any(_same(p, other) for p in poses):
+                poses.append(other)
     obj, raw = problem.obj[:n], problem.raw[:n]
     errors = []
     for rv, tv in poses:

@@ -19,6 +19,9 @@ from ._covariance import pose_covariance as pose_covariance
 from ._methods import SINGLE_METHODS as SINGLE_METHODS
 from ._methods import per_triplet as per_triplet
 from ._methods import run_method as run_method
+from ._minima import SAME_MINIMUM as SAME_MINIMUM
+from ._minima import Minima as Minima
+from ._minima import local_minima as local_minima
 from ._mixed import MixedResult as MixedResult
 from ._mixed import mixed as mixed
 from ._mixed import mixed_from_initial as mixed_from_initial
@@ -37,6 +40,7 @@ from ._options import with_values as with_values
 from ._pipeline import Solution as Solution
 from ._pipeline import solve_problems as solve_problems
 from ._planar import planar_partner as planar_partner
+from ._planar import planar_poses as planar_poses
 from ._robust import RobustResult as RobustResult
 from ._robust import robust as robust
 from ._triplets import Initial as Initial

@@ -17,13 +17,16 @@ from ..solvers._components import (
     add,
     cross,
     dot,
+    mat_to_array,
     matmul,
     matvec,
     norm_sq,
     scale,
     sub,
     vec_from_array,
+    vec_to_array,
 )
+from ..solvers._kernel_linear import matches_from_observations
 
 __all__ = [
     "FLAT_TOL",
@@ -32,6 +35,7 @@ __all__ = [
     "plane_fit",
     "planar_partner",
     "planar_partner_batch",
+    "planar_poses",
 ]
 
 # Flatness below which a model counts as coplanar (planar partner start): RMS distance to
@@ -181,3 +185,139 @@ def plane_fit(S: Float[ArrayLike, "3 3"]) -> tuple[Array, Array, Float[Array, " 
     fallback = jnp.array([0, 0, 1], dtype)
     normal = jnp.where(length > 0, best / jnp.where(length > 0, length, 1), fallback)
     return smallest, middle, normal
+
+
+def _rotation_to(d: Float[Array, " 3"]) -> Float[Array, "3 3"]:
+    """The rotation about `e_z x d` taking `e_z` to the unit vector `d` (`d_z > 0`):
+    `I + [k]x + [k]x^2 / (1 + d_z)`, `k = e_z x d`."""
+    k = jnp.stack([-d[1], d[0], jnp.zeros_like(d[0])])
+    kx = jnp.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]], d.dtype)
+    return jnp.eye(3, dtype=d.dtype) + kx + kx @ kx / (1 + d[2])
+
+
+def _plane_basis(normal: Float[Array, " 3"]) -> Float[Array, "3 3"]:
+    """A rotation whose third column is the unit `normal` (its columns: two directions in
+    the plane, then the normal)."""
+    axis = jnp.eye(3, dtype=normal.dtype)[jnp.argmin(jnp.abs(normal))]
+    e1 = jnp.cross(normal, axis)
+    e1 = e1 / jnp.linalg.norm(e1)
+    return jnp.stack([e1, jnp.cross(normal, e1), normal], axis=1)
+
+
+def _homography(u: Array, x: Array, w: Array) -> Array:
+    """The homography `H` with `[x 1] ~ H [u 1]` of the weighted matches (`u`, `x` of
+    `(n, 2)`, `w` `(n,)` 0 or 1) by the normalised direct linear transform: both point
+    sets centred and scaled to an RMS distance of `sqrt 2`, `h` the eigenvector of the
+    smallest eigenvalue of `A^T A` (`A` the two rows of each match)."""
+    dtype = u.dtype
+    count = jnp.maximum(jnp.sum(w), 1)
+
+    def normaliser(p):
+        c = jnp.sum(p * w[:, None], axis=0) / count
+        d = p - c[None, :]
+        rms = jnp.sqrt(jnp.sum(jnp.sum(d**2, axis=1) * w) / count)
+        s = jnp.sqrt(2.0) / jnp.where(rms > 0, rms, 1)
+        T = jnp.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1]], dtype)
+        return d * s, T
+
+    un, Tu = normaliser(u)
+    xn, Tx = normaliser(x)
+    one, zero = jnp.ones_like(w), jnp.zeros_like(w)
+    a, b = un[:, 0], un[:, 1]
+    X, Y = xn[:, 0], xn[:, 1]
+    rows_x = jnp.stack([a, b, one, zero, zero, zero, -X * a, -X * b, -X], axis=1)
+    rows_y = jnp.stack([zero, zero, zero, a, b, one, -Y * a, -Y * b, -Y], axis=1)
+    A = jnp.concatenate([rows_x, rows_y]) * jnp.concatenate([w, w])[:, None]
+    _, vectors = jnp.linalg.eigh(A.T @ A)
+    Hn = vectors[:, 0].reshape(3, 3)
+    # H = Tx^-1 Hn Tu (Tx^-1 in closed form: a scale and a shift)
+    s, cx, cy = Tx[0, 0], -Tx[0, 2] / Tx[0, 0], -Tx[1, 2] / Tx[0, 0]
+    Tx_inv = jnp.array([[1 / s, 0, cx], [0, 1 / s, cy], [0, 0, 1]], dtype)
+    return Tx_inv @ Hn @ Tu
+
+
+def planar_poses(obs: Observations) -> tuple[Pose, Bool[Array, " 2"]]:
+    """The two poses of a coplanar model from the homography of its plane to the image
+    (one problem; infinitesimal plane-based pose estimation, Collins & Bartoli 2014):
+    `(Pose` with a leading axis of 2, `ok (2,))`, `ok` False for a model that is not
+    coplanar (`FLAT_TOL`, as `planar_partner`) or a degenerate homography.
+
+    In the camera's whitened frame (`jaxpose.solvers._kernel_linear.Matches`: there the
+    image is the pinhole's normalised coordinates `x`) and the plane's own coordinates
+    `u` (about the model's centroid, along its best-fit plane), the homography `H`
+    (`_homography`) maps the centroid to `v = H(0)` with Jacobian `J`. A pose `x =
+    proj(R_p [u 0] + t)` has, at `u = 0`, `J = B R'_{2x2} / t_z` with `R_p = R_v R'`,
+    `R_v` the rotation taking `e_z` to the ray of `v`, and `B = [I_2 | -v] R_v[:, :2]`.
+    So `A = B^-1 J` is the top-left block of a rotation scaled by `1 / t_z`: its largest
+    singular value `gamma` is `1 / t_z`, `R'_{2x2} = A / gamma`, and the third row `b`
+    of the first two columns satisfies `b b^T = I - R'_{2x2}^T R'_{2x2}` (rank one),
+    which fixes `b` up to its sign: the two poses of the planar ambiguity, `b` and `-b`.
+    Each rotation's translation is the linear least-squares one (the cross-multiplied
+    projection equations of every match)."""
+    m = matches_from_observations(obs)
+    dtype = m.x.dtype
+    w = m.mask.astype(dtype)
+    count = jnp.sum(w)
+    centred = jnp.stack(list(m.model), axis=1)  # (n, 3): about the centroid, 0 if unused
+    smallest, middle, normal = plane_fit(centred.T @ centred / jnp.maximum(count, 1))
+    flat = (smallest <= FLAT_TOL**2 * middle) & (middle > 0) & (count >= 4)
+    basis = _plane_basis(normal)
+    u = (centred @ basis)[:, :2]
+    x = jnp.stack([m.x, m.y], axis=1)
+    H = _homography(u, x, w)
+    h33 = jnp.where(H[2, 2] != 0, H[2, 2], 1)
+    v = H[:2, 2] / h33
+    J = (H[:2, :2] - v[:, None] * H[2, :2][None, :]) / h33
+    d = jnp.concatenate([v, jnp.ones((1,), dtype)])
+    Rv = _rotation_to(d / jnp.linalg.norm(d))
+    B = (jnp.concatenate([jnp.eye(2, dtype=dtype), -v[:, None]], axis=1) @ Rv)[:, :2]
+    det_B = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
+    B_inv = jnp.array([[B[1, 1], -B[0, 1]], [-B[1, 0], B[0, 0]]]) / jnp.where(det_B != 0, det_B, 1)
+    A = B_inv @ J
+    frob = jnp.sum(A**2)
+    det_A = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    gamma = jnp.sqrt((frob + jnp.sqrt(jnp.maximum(frob**2 - 4 * det_A**2, 0))) / 2)
+    R22 = A / jnp.where(gamma > 0, gamma, 1)
+    M = jnp.eye(2, dtype=dtype) - R22.T @ R22
+    first = M[0, 0] >= M[1, 1]
+    lead = jnp.sqrt(jnp.maximum(jnp.where(first, M[0, 0], M[1, 1]), 0))
+    other = jnp.where(lead > 0, M[0, 1] / jnp.where(lead > 0, lead, 1), 0)
+    b = jnp.where(first, jnp.stack([lead, other]), jnp.stack([other, lead]))
+    tiny = jnp.finfo(dtype).tiny
+    frame, offset, centroid = (
+        mat_to_array(m.frame),
+        vec_to_array(m.offset),
+        vec_to_array(m.centroid),
+    )
+
+    def pose(sign):
+        c1 = jnp.stack([R22[0, 0], R22[1, 0], sign * b[0]])
+        c2 = jnp.stack([R22[0, 1], R22[1, 1], sign * b[1]])
+        Rp = Rv @ jnp.stack([c1, c2, jnp.cross(c1, c2)], axis=1)
+        Rf = Rp @ basis.T  # model (about its centroid) to the whitened frame
+        q = centred @ Rf.T  # (n, 3)
+        # x (q_z + t_z) = q_x + t_x, y (q_z + t_z) = q_y + t_y, least squares in t
+        rows = jnp.stack(
+            [
+                jnp.stack([-w, jnp.zeros_like(w), w * m.x], axis=1),
+                jnp.stack([jnp.zeros_like(w), -w, w * m.y], axis=1),
+            ]
+        )  # (2, n, 3)
+        rhs = jnp.stack([w * (q[:, 0] - m.x * q[:, 2]), w * (q[:, 1] - m.y * q[:, 2])])
+        N = jnp.einsum("kni,knj->ij", rows, rows)
+        r = jnp.einsum("kni,kn->i", rows, rhs)
+        adj = jnp.stack([jnp.cross(N[1], N[2]), jnp.cross(N[2], N[0]), jnp.cross(N[0], N[1])])
+        det_N = jnp.dot(N[0], adj[0])
+        t_f = adj.T @ r / jnp.where(jnp.abs(det_N) > tiny, det_N, 1)
+        R = frame.T @ Rf
+        t = frame.T @ (t_f - offset) - R @ centroid
+        return R, t, jnp.abs(det_N) > tiny
+
+    R1, t1, ok1 = pose(1.0)
+    R2, t2, ok2 = pose(-1.0)
+    poses = Pose(jnp.stack([R1, R2]), jnp.stack([t1, t2]))
+    ok = flat & (det_B != 0) & (gamma > 0) & jnp.stack([ok1, ok2])
+    ok = ok & jax.vmap(lambda R, t: jnp.all(jnp.isfinite(R)) & jnp.all(jnp.isfinite(t)))(
+        poses.R, poses.t
+    )
+    return poses, ok

@@ -7,12 +7,16 @@ import numpy as np
 import jaxpose as jp
 from benchmarks.opencv_cases import compare_with_ippe, planar_case
 
-#: Planar problems compared with IPPE (`benchmarks/opencv_cases.py` runs 1,000; 200
-#: here, about 2.5 minutes on a 2-core CPU).
-PLANAR_PROBLEMS = 200
+#: Planar problems compared with IPPE (as `benchmarks/opencv_cases.py`).
+PLANAR_PROBLEMS = 1000
 
 
 def test_planar_targets_give_ippe_refined_poses():
+    """IPPE's two poses refined to their local minima are among `solve_pnp_generic`'s
+    poses, on every one of 1,000 planar problems; each of its poses is a local minimum
+    (`compare_with_ippe`). Where IPPE's two refine to one minimum (or one to none: a
+    pose behind the camera), `solve_pnp_generic` may return a minimum more, checked to
+    be one (110 of these 1,000 have one minimum, 890 two)."""
     rng = np.random.default_rng(30)
     failed = []
     twos = 0
@@ -21,12 +25,8 @@ def test_planar_targets_give_ippe_refined_poses():
         same, count = compare_with_ippe(obj, img, K)
         if not same:
             failed.append(k)
-        twos += count == 2
-    # The planar partner of the answer (a reflection about the line of sight) starts
-    # the search for the other minimum; where the noise makes the two minima far from
-    # mirror images (near a frontal view, few points), the start can fall in the
-    # answer's basin and the other minimum is missed: 1 problem of these 200 (seed 30).
-    assert len(failed) <= PLANAR_PROBLEMS // 100, failed
+        twos += count >= 2
+    assert not failed, failed
     assert twos > PLANAR_PROBLEMS // 4  # the ambiguity is common at these distances
 
 
