@@ -50,6 +50,7 @@ from tables_speed import (  # noqa: E402
     speed_phases,
     startup,
 )
+from tables_track import track_box  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -195,6 +196,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "robust_random": robust_random,
     "gradients": gradients,
     "opencv_cases": opencv_cases,
+    "track_box": track_box,
     "statuses": statuses,
     "paper_table1": paper_table1,
 }
