@@ -104,7 +104,7 @@ def run_opencv(frames, textured, K, dist) -> tuple[list, list, float]:
     spent in all."""
     import cv2
 
-    orb = cv2.ORB_create(nfeatures=ORB_FEATURES)
+    orb = cv2.ORB.create(nfeatures=ORB_FEATURES)
     matcher = cv2.FlannBasedMatcher(
         dict(algorithm=6, table_number=6, key_size=12, multi_probe_level=1), dict(checks=50)
     )
@@ -128,7 +128,14 @@ def run_opencv(frames, textured, K, dist) -> tuple[list, list, float]:
             obj = textured.points[[m.trainIdx for m in good]].astype(np.float64)
             img = np.array([keypoints[m.queryIdx].pt for m in good], np.float64)
             ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-                obj, img, K, dist_arg, flags=cv2.SOLVEPNP_ITERATIVE, **RANSAC
+                obj,
+                img,
+                K,
+                dist_arg,
+                iterationsCount=int(RANSAC["iterationsCount"]),
+                reprojectionError=float(RANSAC["reprojectionError"]),
+                confidence=float(RANSAC["confidence"]),
+                flags=cv2.SOLVEPNP_ITERATIVE,
             )
             if ok and inliers is not None and len(inliers) >= MIN_INLIERS:
                 R = cv2.Rodrigues(rvec)[0]
