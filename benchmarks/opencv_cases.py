@@ -505,7 +505,8 @@ def local_minimum(obj, img, K, dist, rvec, tvec, steps: int = 30):
     definite = np.linalg.eigvalsh(scale[:, None] * H * scale[None, :]).min() > 0
     depth = (np.asarray(obj, np.float64).reshape(-1, 3) @ cv2.Rodrigues(x[:3])[0].T)[:, 2] + x[5]
     ok = bool(np.all(np.isfinite(x)) and small and definite and np.all(depth > 0))
-    return x[:3].reshape(3, 1), x[3:].reshape(3, 1), ok
+    rvec = cv2.Rodrigues(cv2.Rodrigues(x[:3])[0])[0]  # |rvec| <= pi
+    return rvec.reshape(3, 1), x[3:].reshape(3, 1), ok
 
 
 def _refined_ippe(obj, img, K, dist):
@@ -531,9 +532,15 @@ def _error(obj, img, K, dist, r, t):
 
 
 def _matches(ours, theirs, obj, img, K, dist):
-    """One local minimum: the same pose (to the solvers' tolerance) and error."""
+    """One local minimum: the same pose (to the solvers' tolerance: rotations within
+    1e-5 rad, whatever their rotation vectors' turns) and error."""
     (r, t), (rc, tc) = ours, theirs
-    close = np.abs(r - rc).max() < 1e-5 and np.abs(t - tc).max() < 1e-5 * np.abs(tc).max()
+    Ra, Rb = (
+        cv2.Rodrigues(np.asarray(r, np.float64))[0],
+        cv2.Rodrigues(np.asarray(rc, np.float64))[0],
+    )
+    angle = np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))
+    close = angle < 1e-5 and np.abs(t - tc).max() < 1e-5 * np.abs(tc).max()
     e, ec = _error(obj, img, K, dist, r, t), _error(obj, img, K, dist, rc, tc)
     return close and abs(e - ec) <= 1e-9 * ec
 
@@ -543,6 +550,17 @@ def planar_case(rng, dist=None):
     obj = np.c_[rng.uniform(-1, 1, (n, 2)), np.zeros(n)]
     K = np.array([[rng.uniform(300, 2000), 0, 320], [0, 0, 240], [0, 0, 1]])
     K[1, 1] = K[0, 0] * rng.uniform(0.9, 1.1)
+    rvec = rng.normal(0, 0.6, 3)
+    tvec = np.array([*rng.normal(0, 0.5, 2), rng.uniform(4, 15)])
+    img = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
+    return obj, img + rng.normal(0, rng.uniform(0.1, 2.0), img.shape), K
+
+
+def p3p_case(rng, dist=None):
+    """Four matches of a general (non-coplanar) model, as `planar_case` otherwise."""
+    obj = rng.uniform(-1, 1, (4, 3))
+    K = np.array([[rng.uniform(300, 2000), 0, 320], [0, 0, 240], [0, 0, 1]])
+    K[1, 1] = K[0, 0]
     rvec = rng.normal(0, 0.6, 3)
     tvec = np.array([*rng.normal(0, 0.5, 2), rng.uniform(4, 15)])
     img = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)

@@ -14,8 +14,9 @@ minimum, the starts that lead to the others:
 Each start runs as a problem of its own from that pose (`jaxpose.strategy._start`: the
 linear method, Levenberg-Marquardt with `MINIMA_STEPS` steps where it does not reach an
 accepted pose, the finish to the stationary point of Eq. 8), all of them one batch of
-the pipeline; a start is kept when its run is accepted and its minimum is distinct
-(`SAME_MINIMUM`) from the answer and from the minima kept before it.
+the pipeline; a start is kept when its run is accepted, ends at a local minimum of Eq. 8
+(`is_minimum`) and is distinct (`SAME_MINIMUM`) from the answer and from the minima
+kept before it.
 """
 
 from __future__ import annotations
@@ -28,8 +29,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..geometry._pose import Observations, Pose, observations
+from ..solvers._chart import chart_at, chart_residuals
 from ..solvers._components import Mat3, mat_to_array, take_along
 from ..solvers._kernel_linear import matches_from_observations, pixel_error_kernel
+from ..solvers._linalg import positive_definite_solve
 from ._best import _roots, answer_triplets, distinct_best
 from ._options import Options
 from ._pipeline import solve_problems
@@ -38,20 +41,28 @@ from ._planar import planar_partner, planar_poses
 __all__ = [
     "MINIMA_ROOTS",
     "MINIMA_STEPS",
+    "MINIMUM_STEP",
     "SAME_MINIMUM",
     "Minima",
+    "is_minimum",
     "local_minima",
     "minimum_starts",
 ]
 
 #: Three-point roots refined by `local_minima` (the best-scored distinct ones).
-MINIMA_ROOTS = 4
+MINIMA_ROOTS = 8
 
 #: Levenberg-Marquardt's step budget of each start (at least; `Options.max_steps`): the
 #: valleys of the planar ambiguity are flat, and a run from the homography's poses can
 #: take more than the answer's 50 steps to converge to their bottom (measured: 200 where
 #: 50 left a planar problem's second minimum unconverged).
 MINIMA_STEPS = 200
+
+#: The largest Newton step of Eq. 8 (rad; object radii: `jaxpose.solvers._chart`) at a
+#: pose that counts as a local minimum. (The linear method converges to its own fixed
+#: point, which is Eq. 8's minimum only where the pose fits: measured, a root's run
+#: accepted at 22.7 px whose Gauss-Newton step was 2 rad.)
+MINIMUM_STEP = 1e-6
 
 #: Two local minima closer than this (rotation, rad; translation, relative to the longer
 #: of the two) are one.
@@ -92,6 +103,20 @@ def minimum_starts(obs: Observations, answer: Pose, options: Options) -> tuple[P
     return starts, jnp.concatenate([flat[None], planar_ok, found[0]])
 
 
+def is_minimum(obs: Observations, pose: Pose) -> Bool[Array, ""]:
+    """Whether `pose` is a local minimum of Eq. 8: the Hessian in the chart at it
+    positive definite and its Newton step below `MINIMUM_STEP`."""
+    chart = chart_at(pose, obs)
+
+    def cost(xi):
+        r = chart_residuals(xi, chart, obs)
+        return 0.5 * jnp.sum(r * r)
+
+    zero = jnp.zeros(6, pose.t.dtype)
+    step, positive = positive_definite_solve(jax.hessian(cost)(zero), -jax.grad(cost)(zero))
+    return positive & jnp.all(jnp.abs(step) < MINIMUM_STEP)
+
+
 def same_minimum(a: Pose, b: Pose) -> Bool[Array, ""]:
     """Whether two poses are one local minimum (`SAME_MINIMUM`)."""
     cos = (jnp.sum(a.R * b.R) - 1) / 2  # trace(Ra^T Rb) = 1 + 2 cos(angle)
@@ -124,7 +149,8 @@ def local_minima(camera, model, image, mask, answer: Pose, options: Options) -> 
     finite = jnp.all(jnp.isfinite(sol.pose.R), axis=(1, 2)) & jnp.all(
         jnp.isfinite(sol.pose.t), axis=1
     )
-    ok = valid & sol.accepted & finite
+    minimum = jax.vmap(is_minimum, in_axes=(None, 0))(obs, sol.pose)
+    ok = valid & sol.accepted & finite & minimum
     distinct = []
     for i in range(S):
         pose_i = jax.tree.map(lambda a, i=i: a[i], sol.pose)
