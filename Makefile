@@ -1,6 +1,7 @@
 # One command each: `make demo` runs the paper's experiment, `make test` the test suite.
 # Both create the virtual environment (.venv) themselves when it is missing or stale.
-# `make docs` builds the documentation site into site/ (`make test` builds it too, strictly).
+# `make docs` builds the documentation site into site/ (`make test` builds it too, strictly,
+# then checks its pages' layout in headless Chromium: `make docs-layout`).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -8,7 +9,15 @@ STAMP := $(VENV)/.installed
 # Material for MkDocs prints a notice about MkDocs 2.0 on every build; it is not a warning.
 MKDOCS := NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs
 
-.PHONY: demo test docs bench bench-quick lint format clean
+# Every page of the built site/ at 1280 px in headless Chromium: a table or code block cut
+# or scrolling sideways, or text cut, fails it (docs/scripts/check_layout.py); a screenshot
+# of each page goes to .cache/docs-screenshots/. A missing Chromium is installed with
+# apt-get where this is root with apt-get; where it cannot be, the check says so and is
+# skipped without failing the target.
+LAYOUT_CHECK := $(BIN)/python docs/scripts/check_layout.py site .cache/docs-screenshots \
+	--install-browser --skip-without-browser
+
+.PHONY: demo test docs docs-layout bench bench-quick lint format clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -19,19 +28,23 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/jaxpose reproduce --out results
 
-# pyright and the strict docs build run beside the test suite at the lowest priority:
-# they take a core only when a test worker leaves one idle. Their reports are printed
-# after the tests; any of the three failing fails the target.
+# pyright and the strict docs build (then its layout check) run beside the test suite at
+# the lowest priority: they take a core only when a test worker leaves one idle. Their
+# reports are printed after the tests; any of the three failing fails the target.
 test: $(STAMP)
 	$(BIN)/ruff check .
 	nice -n 19 $(BIN)/pyright > .pyright.log 2>&1 & pyright=$$!; \
-	nice -n 19 env $(MKDOCS) build --strict --site-dir site > .mkdocs.log 2>&1 & docs=$$!; \
+	nice -n 19 sh -c '$(MKDOCS) build --strict --site-dir site && $(LAYOUT_CHECK)' \
+		> .mkdocs.log 2>&1 & docs=$$!; \
 	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=40; \
 	status=$$?; wait $$pyright || status=1; wait $$docs || status=1; \
 	cat .pyright.log .mkdocs.log; exit $$status
 
 docs: $(STAMP)
 	$(MKDOCS) build --strict --site-dir site
+
+docs-layout: $(STAMP)
+	$(LAYOUT_CHECK)
 
 # The speed targets table (benchmarks/speed.py's TARGETS beside their figures) prints last.
 bench: $(STAMP)
@@ -57,4 +70,5 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) results site docs/generated .pytest_cache .hypothesis .pyright.log .mkdocs.log
+	rm -rf $(VENV) results site docs/generated .pytest_cache .hypothesis .pyright.log .mkdocs.log \
+		.cache/docs-screenshots

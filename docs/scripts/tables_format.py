@@ -18,14 +18,18 @@ def table(header: Sequence[str], rows: Sequence[Sequence[object]], left: int = 1
     return "\n".join(lines)
 
 
+# Between a figure and its unit: a table's narrow column wraps around "1.5 ms" as a whole.
+NBSP = "\u00a0"
+
+
 def duration(seconds: float | None) -> str:
     """`seconds` in the unit that keeps three significant digits readable."""
     if seconds is None or not math.isfinite(seconds):
         return "-"
     for unit, scale in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6)):
         if abs(seconds) >= scale:
-            return f"{seconds / scale:.3g} {unit}"
-    return f"{seconds / 1e-9:.3g} ns"
+            return f"{seconds / scale:.3g}{NBSP}{unit}"
+    return f"{seconds / 1e-9:.3g}{NBSP}ns"
 
 
 def share(x: float | None, digits: int = 2) -> str:
@@ -41,7 +45,7 @@ def number(x: float | None) -> str:
 
 
 def megabytes(n_bytes: float | None) -> str:
-    return "-" if n_bytes is None else f"{n_bytes / 1e6:.3g} MB"
+    return "-" if n_bytes is None else f"{n_bytes / 1e6:.3g}{NBSP}MB"
 
 
 def verdict(value: float, target: float, higher_is_better: bool) -> str:

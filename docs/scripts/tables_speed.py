@@ -4,7 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tables_format import Missing, caption, duration, load, megabytes, share, table, verdict
+from tables_format import (
+    NBSP,
+    Missing,
+    caption,
+    duration,
+    load,
+    megabytes,
+    share,
+    table,
+    verdict,
+)
 
 
 def _run_command(data: dict, only: str) -> str:
@@ -31,8 +41,8 @@ def _bound(row: dict) -> str:
     sign = ">=" if row["higher_is_better"] else "<="
     unit = row["unit"]
     if unit == "%":
-        return f"{sign} {100 * row['target']:g}%"
-    return f"{sign} {row['target']:g}{'x' if unit == 'x' else ' ' + unit}"
+        return f"{sign}{NBSP}{100 * row['target']:g}%"
+    return f"{sign}{NBSP}{row['target']:g}{'x' if unit == 'x' else NBSP + unit}"
 
 
 def speed(results: Path) -> str:
