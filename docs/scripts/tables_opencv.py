@@ -28,8 +28,9 @@ def opencv_cases(results: Path) -> str:
     ippe = d.get("ippe")
     if ippe:
         out += (
-            f"\n\n*`solve_pnp_generic` on {ippe['problems']:,} planar problems: its local "
-            f"minima are IPPE's two poses refined to theirs in {share(ippe['same_as_ippe'], 1)}"
-            f" of them ({share(ippe['two_minima'], 0)} have two distinct minima).*"
+            f"\n\n*`solve_pnp_generic` on {ippe['problems']:,} planar problems: its poses "
+            f"hold IPPE's two refined to their local minima, and are all local minima, in "
+            f"{share(ippe['same_as_ippe'], 1)} of them ({share(ippe['two_minima'], 0)} "
+            f"have two or more distinct minima).*"
         )
     return out + "\n\n" + caption(d, name, command="python benchmarks/opencv_cases.py")
