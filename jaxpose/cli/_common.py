@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["CliError", "new_console", "setup_jax", "write_report"]
+__all__ = ["CliError", "camera_option", "new_console", "setup_jax", "write_report"]
 
 
 class CliError(Exception):
@@ -41,6 +41,17 @@ def setup_jax(x64: bool = True) -> None:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     except OSError:  # pragma: no cover - read-only home
         pass
+
+
+def camera_option(path):
+    """`(K, dist)` of the OpenCV camera file given as `--camera` (`jaxpose.features.read_camera`);
+    a file that cannot be read is a `CliError` naming the option."""
+    from ..features._files import read_camera
+
+    try:
+        return read_camera(path)
+    except ValueError as exc:
+        raise CliError(f"--camera {path}: {exc}") from None
 
 
 def write_report(path, report: dict, option: str, console) -> None:

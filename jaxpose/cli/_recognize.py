@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ._common import CliError, new_console, setup_jax, write_report
+from ._common import CliError, camera_option, new_console, setup_jax, write_report
 from ._recording import check_recording_args, make_recording, wants_recording
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -210,14 +210,9 @@ def cmd_recognize(args) -> int:
     import cv2
     import numpy as np
 
-    from ..features._files import read_camera
-
     console = new_console()
     _check_options(args)
-    try:
-        K, dist = read_camera(args.camera)
-    except ValueError as exc:
-        raise CliError(f"--camera {args.camera}: {exc}") from None
+    K, dist = camera_option(args.camera)
     models = _read_models(args.model)
     paths = _image_paths(args.image)
     pictures = []

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ._common import CliError, new_console, setup_jax
+from ._common import CliError, camera_option, new_console, setup_jax
 from ._recording import (
     check_recording_args,
     finish_recording,
@@ -208,15 +208,11 @@ def cmd_track(args) -> int:
     from ..apps._track import track
     from ..apps._track_options import TrackOptions
     from ..apps._visibility import mesh_geometry
-    from ..features._files import read_camera
     from ..features._video import open_frames
 
     console = new_console()
     _check_args(args)
-    try:
-        K, dist = read_camera(args.camera)
-    except ValueError as exc:
-        raise CliError(f"--camera {args.camera}: {exc}") from None
+    K, dist = camera_option(args.camera)
     dist = None if not np.any(dist) else dist
     try:
         mesh = read_mesh(args.model)
