@@ -1,11 +1,14 @@
 """The documentation's layout check (`docs/scripts/check_layout.py`, run by `make test`
 after its docs build) on two small pages in headless Chromium: a code block and a table
 wider than the content column are found, a page that fits passes, and every page gets a
-screenshot. Skipped where no Chromium is installed."""
+screenshot. Skipped where no Chromium is installed. The check runs in a process of its
+own, as `make test` runs it: it starts the browser with a `preexec_fn` (a fork), which
+JAX, already running in a test worker, warns against."""
 
 from __future__ import annotations
 
 import importlib.util
+import subprocess
 import sys
 from pathlib import Path
 
@@ -45,14 +48,22 @@ WIDE = """<h2>Start here</h2><pre><code>{line}</code></pre>
 NARROW = "<h2>Start here</h2><pre><code>make demo  # short</code></pre>"
 
 
-def test_wide_blocks_are_found_and_every_page_is_screenshot(tmp_path, capsys):
+def _check(*args: str) -> tuple[int, str]:
+    """`check_layout.py *args` in a fresh process: its exit code and output."""
+    run = subprocess.run(
+        [sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=300
+    )
+    return run.returncode, run.stdout
+
+
+def test_wide_blocks_are_found_and_every_page_is_screenshot(tmp_path):
     site = tmp_path / "site"
     site.mkdir()
     (site / "index.html").write_text(PAGE.format(body=NARROW))
     (site / "wide.html").write_text(PAGE.format(body=WIDE))
     shots = tmp_path / "shots"
-    assert check_layout.main([str(site), str(shots)]) == 1
-    out = capsys.readouterr().out
+    code, out = _check(str(site), str(shots))
+    assert code == 1, out
     lines = [line for line in out.splitlines() if line.startswith("wide.html:")]
     assert len(lines) == 2, out
     assert any("code block" in line and '"Start here"' in line for line in lines), out
@@ -66,4 +77,5 @@ def test_a_page_that_fits_passes(tmp_path):
     site = tmp_path / "site"
     site.mkdir()
     (site / "index.html").write_text(PAGE.format(body=NARROW))
-    assert check_layout.main([str(site), str(tmp_path / "shots")]) == 0
+    code, out = _check(str(site), str(tmp_path / "shots"))
+    assert code == 0, out
