@@ -45,7 +45,6 @@ def rng():
 # reorders files by their number of tests instead.)
 SLOW_FIRST = (
     "test_gradients.py",
-    "test_generic.py",
     "test_fuzz.py",
     "test_best.py",
     "test_api.py",
