@@ -119,10 +119,11 @@ class _Forward(Generic[_T]):
 
     def __set_name__(self, owner, name: str):
         self.name = name
+        self.default = getattr(_GROUPS[self.group](), name)  # read once, when `Options` is made
 
     def __get__(self, obj, owner=None) -> _T:
         if obj is None:  # the class itself: the default
-            return getattr(_GROUPS[self.group](), self.name)
+            return self.default
         return getattr(getattr(obj, self.group), self.name)
 
 
