@@ -10,21 +10,17 @@ Per frame, from the previous pose (the prediction):
 2. **KLT points** (`jaxpose.features.track_points`) followed from the previous frame,
    each with its model point found once by casting its ray onto the mesh
    (`cast_rays`); their set is topped up inside the visible faces when it runs low.
-3. **The linear method**: with the camera frame as the world (`C = K [I | 0]`), an
-   image line `l = (n, -n . q)` is the plane `C^T l` through the camera centre, and a
-   pixel `(u, v)` the two planes of its visual ray (the paper's Eq. 5). The small
-   motion `dX = dt + r x (X - X_c)` (Eq. 3, turned about the centroid `X_c` of the
-   measured points for conditioning) put into these planes gives one linear equation
-   per edge match and two per point (Eq. 7). Each row is divided by the point's depth
-   and its normal taken at the reprojected pixel, so that its right-hand side is the
-   pixel residual and the iteration is Gauss-Newton on the pixel errors (as
-   `jaxpose.solvers.linear`'s `"depth"` weighting). Rows are weighted by Tukey's
-   biweight of their residual over a robust scale (1.4826 times the median absolute
-   residual, edges and points apart), so that wrong matches (a hand over the edge,
-   a neighbouring edge near a corner) lose their say, and each kind by the inverse
-   square of its scale (the better measured kind counts more: points tracked on a
-   plain face, mostly noise, hardly count). The 6 x 6 normal equations are solved,
-   the motion applied exactly, and the step repeated.
+3. **The linear method** (`jaxpose.apps._track_solve`, one compiled program per bucket
+   of measurement counts): each edge match is the plane through the camera centre and
+   its image line, each point the two planes of its visual ray (the paper's Eq. 5); the
+   small motion (Eq. 3) put into them gives one row per edge match and two per point
+   (Eq. 7), divided by the depth with the normal at the reprojected point, so that the
+   iteration is Gauss-Newton on the pixel errors. Rows are weighted by Tukey's biweight
+   of their residual over a robust scale (edges and points apart), so that wrong
+   matches (a hand over the edge, a neighbouring edge near a corner) lose their say,
+   and each kind by the inverse square of its scale (points tracked on a plain face,
+   mostly noise, hardly count). The 6 x 6 normal equations are solved, the motion
+   applied exactly, and the step repeated.
 
 Each edge sample expects the contrast (sign and size) that the match nearest to it on
 the model had on the last frame, so that a printed line beside an edge is not taken
@@ -44,8 +40,10 @@ recognition, `recognition_reinit`), with the model's half-turn symmetries (which
 alone cannot tell apart; the contrasts remembered from the last frame held pick one),
 and from the last pose held, until one is supported (`"reinitialised"`).
 
-Plain numpy and OpenCV per frame: one frame of 640 x 480 costs a few milliseconds
-(see `benchmarks/frontend.py`).
+The measurements are numpy and OpenCV (one frame of 640 x 480 costs a few milliseconds,
+see `benchmarks/frontend.py`), the solve compiled. Each frame keeps its measurements with
+their weights (`TrackedFrame.rows`), so that a whole sequence can be refined jointly
+afterwards (`refine_track`).
 """
 
 from __future__ import annotations
@@ -61,6 +59,7 @@ from ..features._moving_edges import _grey, moving_edges
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
 from ._track_options import TrackOptions
+from ._track_solve import Measurements, Solved, TrackRows, _orthonormal, solve_frame
 from ._visibility import (
     MeshGeometry,
     _check_pose,
@@ -72,9 +71,6 @@ from ._visibility import (
 )
 
 __all__ = ["TrackedFrame", "track"]
-
-#: Tukey's biweight constant (95% efficiency under Gaussian noise).
-_TUKEY = 4.685
 
 
 class TrackedFrame(NamedTuple):
@@ -93,6 +89,8 @@ class TrackedFrame(NamedTuple):
       `"lost"` (the frame's measurements do not support a pose: `ok` False, the pose is
       the last one held), `"reinitialised"` (found again after lost frames).
     - `ms`: the time the frame took in the tracker (milliseconds, decoding excluded).
+    - `rows`: the measurements of the frame's last solve with their robust weights
+      (`TrackRows`; for `refine_track`), None on a lost frame.
     """
 
     frame: int
@@ -102,20 +100,15 @@ class TrackedFrame(NamedTuple):
     edges: int
     points: int
     rms: float
-    status: str
-    ms: float
+    status: str = ""
+    ms: float = 0.0
+    rows: TrackRows | None = None
 
 
 def _rotation(w: np.ndarray) -> np.ndarray:
     import cv2
 
     return cv2.Rodrigues(np.asarray(w, np.float64).reshape(3, 1))[0]
-
-
-def _orthonormal(R: np.ndarray) -> np.ndarray:
-    """The rotation nearest `R` (products of many rotations drift off the group)."""
-    u, _, vt = np.linalg.svd(R)
-    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
 
 def _undistort(pixels: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
@@ -128,92 +121,10 @@ def _undistort(pixels: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
     return out.reshape(-1, 2)
 
 
-def _tukey(residual: np.ndarray, min_scale: float) -> tuple[np.ndarray, float]:
-    """Tukey's biweight of residuals over their robust scale, and that scale."""
-    if len(residual) == 0:
-        return np.zeros(0), 1.0
-    scale = max(1.4826 * float(np.median(np.abs(residual))), min_scale)
-    z = residual / (_TUKEY * scale)
-    return np.where(np.abs(z) < 1, (1 - z**2) ** 2, 0.0), scale
-
-
-class _Measurements(NamedTuple):
-    """Pinhole-frame measurements: edge lines and points, with their model points."""
-
-    edge_model: np.ndarray  # (E, 3)
-    edge_lines: np.ndarray  # (E, 3): n_x u + n_y v + c = 0, |n| = 1
-    point_model: np.ndarray  # (P, 3)
-    point_pixels: np.ndarray  # (P, 2)
-
-
-def _rows(R, t, K, meas: _Measurements):
-    """Residuals `(M,)` (px) and Jacobian rows `(M, 6)` (d residual / d(dt, r), rotation
-    about the centroid of the measured points) at pose `(R, t)`: the `E` edge rows
-    first, then two rows (u, v) per point; and the centroid."""
-    Xe = meas.edge_model @ R.T + t
-    Xp = meas.point_model @ R.T + t
-    X = np.vstack([Xe, np.repeat(Xp, 2, axis=0)])
-    if len(X) == 0:
-        return np.zeros(0), np.zeros((0, 6)), np.zeros(3)
-    z = np.maximum(X[:, 2], 1e-12)
-    # Edge rows: the plane C^T l = (l^T K, 0), residual l . (u^, v^, 1); its normal at
-    # the reprojected pixel, l^T K - residual e3.
-    ne = meas.edge_lines @ K
-    re = (ne * Xe).sum(axis=1) / z[: len(Xe)]
-    ne[:, 2] -= re
-    # Point rows: the planes of the pixel's visual ray, K_u - u^ e3 and K_v - v^ e3.
-    uv = (Xp @ K[:2].T) / z[len(Xe) :: 2, None]
-    rp = (uv - meas.point_pixels).reshape(-1)
-    npt = np.broadcast_to(K[:2], (len(Xp), 2, 3)).copy()
-    npt[:, :, 2] -= uv
-    n = np.vstack([ne, npt.reshape(-1, 3)]) / z[:, None]
-    centre = np.vstack([Xe, Xp]).mean(axis=0)
-    L = X - centre
-    J = np.empty((len(X), 6))
-    J[:, :3] = n
-    J[:, 3] = L[:, 1] * n[:, 2] - L[:, 2] * n[:, 1]  # (L x n): d residual / d r
-    J[:, 4] = L[:, 2] * n[:, 0] - L[:, 0] * n[:, 2]
-    J[:, 5] = L[:, 0] * n[:, 1] - L[:, 1] * n[:, 0]
-    return np.concatenate([re, rp]), J, centre
-
-
-def _solve(R, t, K, meas: _Measurements, options: TrackOptions):
-    """Robust Gauss-Newton on the linear method's rows (see the module docstring).
-    Returns `(R, t, edge_weights, point_weights, rms, judged, ok)`: `rms` over all the
-    weighted rows, `judged` over the edges' (the points' without edges)."""
-    n_e, n_p = len(meas.edge_model), len(meas.point_model)
-    w_e, w_p = np.zeros(n_e), np.zeros(n_p)
-    rms, judged, ok = 0.0, 0.0, False
-    for _ in range(options.iterations):
-        r, J, centre = _rows(R, t, K, meas)
-        w_e, s_e = _tukey(r[:n_e], options.min_scale)
-        r_p = r[n_e:].reshape(-1, 2)
-        w_p, s_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), options.min_scale)
-        w = np.concatenate([w_e, np.repeat(w_p, 2)])
-        if np.count_nonzero(w) < max(options.min_rows, 6):
-            ok = False
-            break
-        # Each kind of measurement weighted by the inverse of its noise's variance, as
-        # its robust scale estimates it (points tracked badly, e.g. on a plain face,
-        # then count little against the edges, and the other way round).
-        precision = np.concatenate([np.full(n_e, s_e**-2), np.full(2 * n_p, s_p**-2)])
-        Jw = J * (w * precision)[:, None]
-        A = Jw.T @ J
-        b = -(Jw.T @ r)
-        scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
-        try:
-            step = np.linalg.solve(A / np.outer(scale, scale), b / scale) / scale
-        except np.linalg.LinAlgError:
-            break
-        if not np.all(np.isfinite(step)):
-            break
-        dR = _rotation(step[3:])
-        R, t = _orthonormal(dR @ R), dR @ (t - centre) + centre + step[:3]
-        rms = float(np.sqrt((w * r**2).sum() / max(w.sum(), 1e-300)))  # (unscaled)
-        kind = slice(0, n_e) if np.any(w_e > 0) else slice(n_e, None)
-        judged = float(np.sqrt((w * r**2)[kind].sum() / max(w[kind].sum(), 1e-300)))
-        ok = True
-    return R, t, w_e, w_p, rms, judged, ok
+def _solve(R, t, K, meas: Measurements, options: TrackOptions) -> Solved:
+    """The compiled robust solve of `jaxpose.apps._track_solve` with `options`' settings."""
+    return solve_frame(R, t, K, meas, iterations=options.iterations,
+                       min_rows=options.min_rows, min_scale=options.min_scale)  # fmt: skip
 
 
 class _Corners(NamedTuple):
@@ -313,17 +224,13 @@ def _symmetries(geo: MeshGeometry) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 class _Fit(NamedTuple):
-    """One frame's pose fitted from a start: the pose, whether the solve ran, the
-    weighted edge matches and points, the RMS residual, the edges' contrast table, the
-    weights of the points, the fraction of visible edge samples matched (1 without
-    edges), and the RMS residual of the edges (of the points without edges)."""
+    """One frame's pose fitted from a start: `result` (the pose, whether the solve ran,
+    the weighted edge matches and points, the RMS residual and the rows, as the frame
+    reports them), the edges' contrast table, the weights of the points, the fraction of
+    visible edge samples matched (1 without edges), and the RMS residual of the edges
+    (of the points without edges)."""
 
-    R: np.ndarray
-    t: np.ndarray
-    ok: bool
-    edges: int
-    points: int
-    rms: float
+    result: TrackedFrame
     table: _Contrasts
     w_p: np.ndarray
     support: float
@@ -334,7 +241,8 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
     """The pose of one frame from `(R, t)`: edges measured and the pose solved,
     `options.rounds` times (the search range shrinking), with the KLT points given."""
     points_px = _undistort(corners.pixels, K, dist)
-    fit = _Fit(R, t, False, 0, 0, 0.0, _NO_CONTRAST, np.zeros(len(points_px)), 0.0, 0.0)
+    fit = _Fit(TrackedFrame(-1, R, t, False, 0, 0, 0.0), _NO_CONTRAST,
+               np.zeros(len(points_px)), 0.0, 0.0)  # fmt: skip
     for round_ in range(options.rounds):
         search = options.search if round_ == 0 else options.refine_search
         if options.use_edges:
@@ -344,19 +252,25 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
         else:
             e_model, e_lines = np.zeros((0, 3)), np.zeros((0, 3))
             e_index, e_strength, wanted = np.zeros(0), np.zeros(0), 0
-        meas = _Measurements(e_model, e_lines, corners.model, points_px)
-        R1, t1, w_e, w_p, rms, judged, ok = _solve(R, t, K, meas, options)
-        if not ok or not np.all(np.isfinite(t1)):
-            return fit._replace(ok=False)
-        R, t = R1, t1
-        kept = w_e > 0
+        meas = Measurements(e_model, e_lines, corners.model, points_px)
+        solved = _solve(R, t, K, meas, options)
+        if not solved.ok or not np.all(np.isfinite(solved.t)):
+            return fit._replace(result=fit.result._replace(ok=False))
+        R, t = solved.R, solved.t
+        kept = solved.w_e > 0
         order = np.argsort(e_index[kept])
         support = np.count_nonzero(kept) / max(wanted, 1) if options.use_edges else 1.0
-        fit = _Fit(R, t, True, int(np.count_nonzero(kept)), int(np.count_nonzero(w_p)), rms,
-                   _Contrasts(e_index[kept][order], e_strength[kept][order]), w_p,
-                   support, judged)  # fmt: skip
+        result = TrackedFrame(-1, R, t, True, int(np.count_nonzero(kept)),
+                              int(np.count_nonzero(solved.w_p)), solved.rms,
+                              rows=solved.rows)  # fmt: skip
+        fit = _Fit(result, _Contrasts(e_index[kept][order], e_strength[kept][order]),
+                   solved.w_p, support, solved.judged)  # fmt: skip
     return fit
 
+
+#: The fit of a frame on which nothing was tried.
+_NOTHING = _Fit(TrackedFrame(-1, np.eye(3), np.zeros(3), False, 0, 0, 0.0), _NO_CONTRAST,
+                np.zeros(0), 0.0, 0.0)  # fmt: skip
 
 #: How many of the last tracked frames set the usual RMS residual.
 _HISTORY = 15
@@ -365,9 +279,9 @@ _HISTORY = 15
 def _supported(fit: _Fit, usual: list[float], options: TrackOptions) -> bool:
     """Whether a frame's measurements support its fitted pose (`TrackOptions`'s
     `min_rows`, `min_support`, `min_edge_length`, `max_rms_ratio`, `min_rms`)."""
-    if not fit.ok or fit.support < options.min_support:
+    if not fit.result.ok or fit.support < options.min_support:
         return False
-    if options.use_edges and fit.edges * options.spacing < options.min_edge_length:
+    if options.use_edges and fit.result.edges * options.spacing < options.min_edge_length:
         return False
     if not usual:
         return True
@@ -477,11 +391,11 @@ def track(
                     )
                 elif options.predict == "velocity" and len(corners.pixels) >= 3:
                     # No motion yet (just (re)initialised): the KLT points alone predict.
-                    meas = _Measurements(np.zeros((0, 3)), np.zeros((0, 3)), corners.model,
-                                         _undistort(corners.pixels, K, dist))  # fmt: skip
-                    R1, t1, *_, moved = _solve(R_pred, t_pred, K, meas, options)
-                    if moved and np.all(np.isfinite(t1)):
-                        R_pred, t_pred = R1, t1
+                    meas = Measurements(np.zeros((0, 3)), np.zeros((0, 3)), corners.model,
+                                        _undistort(corners.pixels, K, dist))  # fmt: skip
+                    moved = _solve(R_pred, t_pred, K, meas, options)
+                    if moved.ok and np.all(np.isfinite(moved.t)):
+                        R_pred, t_pred = moved.R, moved.t
                 tried = _fit(grey, geo, K, dist, R_pred, t_pred, corners, contrasts, size, options)
                 good = tried if _supported(tried, usual, options) else None
                 status = "tracked"
@@ -516,7 +430,8 @@ def track(
                     tried = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, table, size,
                                  options)  # fmt: skip
                     # Told apart by the matches that kept a remembered contrast.
-                    score = (np.count_nonzero(_expected(table, tried.table.keys)), tried.edges)
+                    score = (np.count_nonzero(_expected(table, tried.table.keys)),
+                             tried.result.edges)  # fmt: skip
                     if _supported(tried, usual, options) and (good is None or score > best):
                         good, best = tried, score
                 status = "reinitialised" if usual else "initialised"
@@ -525,7 +440,7 @@ def track(
                 status = "lost"
                 corners, contrasts, last_seen, motion = _NO_CORNERS, _NO_CONTRAST, None, None
             else:
-                R, t = good.R, good.t
+                R, t = good.result.R, good.result.t
                 if status == "tracked" and pose is not None:
                     R0, t0 = pose
                     motion = (R @ R0.T, t - R @ R0.T @ t0)
@@ -555,11 +470,11 @@ def track(
                         np.vstack([corners.model, hits.points[hits.hit]]),
                     )  # fmt: skip
             previous = grey8
-            shown = good if good is not None else tried
+            shown = (good or tried or _NOTHING).result
             R_out, t_out = (np.eye(3), np.zeros(3)) if pose is None else pose  # (none yet)
-            yield TrackedFrame(index, R_out.copy(), t_out.copy(), good is not None,
-                               shown.edges if shown else 0, shown.points if shown else 0,
-                               shown.rms if shown else 0.0, status,
-                               1e3 * (time.perf_counter() - began))  # fmt: skip
+            yield shown._replace(frame=index, R=R_out.copy(), t=t_out.copy(),
+                                 ok=good is not None, status=status,
+                                 rows=shown.rows if good is not None else None,
+                                 ms=1e3 * (time.perf_counter() - began))  # fmt: skip
 
     return run()

@@ -1,0 +1,278 @@
+r"""The tracker's per-frame solve (issue #32): the paper's small-movement linear method
+(Section 2.2, Eqs. 3-7) on edge and point measurements, robustly weighted, as one
+compiled program per bucket of measurement counts.
+
+**The rows.** With the camera frame as the world (`C = K [I | 0]`), every measurement is
+a plane through the camera centre that the point `X = R m + t` of its model point `m`
+should lie on: an image line `l = (n, -n . q)` (`|n| = 1`: a moving-edge match, the
+edge's normal `n` through the matched pixel `q`) is the plane `a = K^T l`; a pixel
+`(u, v)` (a KLT point) the two planes `K_1 - u e3`, `K_2 - v e3` of its visual ray (the
+paper's Eq. 5). The residual `a . X / Z` is then a pixel distance (to the line; along
+`u` or `v`), and the small motion `dX = dt + r x (X - X_c)` (Eq. 3, turned about the
+centroid `X_c` of the measured points) gives the row of Eq. 7 divided by the depth `Z`,
+with the plane's normal taken at the reprojected point, `(a - (a . X / Z) e3) / Z`:
+the exact derivative of the pixel residual, so that the iteration is Gauss-Newton on the
+pixel errors (the `"depth"` weighting of `jaxpose.solvers.linear`).
+
+**Robust weights** (iteratively reweighted least squares). Each measurement is weighted
+by Tukey's biweight of its residual (an edge's distance, a point's pixel error) over a
+robust scale (1.4826 times the median, edges and points apart, never below
+`min_scale`), and each kind by the inverse square of its scale (the better measured
+kind counts more). The 6 x 6 normal equations are equilibrated and solved by the
+unrolled Cholesky of `jaxpose.solvers._linalg.cholesky_solve`, the motion applied exactly
+(`R <- Rot(r) R`, `jaxpose.geometry.rotvec_to_matrix`), and the step repeated
+(`jax.lax.while_loop`: `iterations` steps, or until a step has fewer than
+`max(min_rows, 6)` weighted rows (`ok` False) or a non-finite solution (the last pose
+kept)).
+
+**Why not `jaxpose.solvers.linear_step` or its kernel.** Those take `Observations`: two
+visual-ray planes per match (Eq. 5), all rows of a match weighted alike, no row weights.
+The tracker's edge match is one plane (a line, not a pixel), and its rows carry robust
+weights recomputed at every step; the component kernel
+(`jaxpose.solvers._kernel_linear`) moreover whitens the image axes, in which a row along
+an arbitrary edge normal is not one of its two row shapes. The rows are therefore
+written here once (`plane_rows`, also used by the offline refinement,
+`jaxpose.apps._track_refine`); the rotation update and the 6 x 6 solve are the
+solvers' own.
+
+**Fixed shapes.** The measurements are padded (masked out) to `bucket_points(E + P)`
+units (8, 16, ..., 1024, then powers of two), one unit per edge match (one row, the
+second masked) or KLT point (two rows), so a handful of programs serve every frame; each
+is compiled once and stored on disk (`jaxpose.api._programs.stored_jit`): a new process
+loads it. The dtype is JAX's default float (float64 under x64).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from ..api._programs import bucket_points, stored_jit
+from ..geometry._numerics import masked_centroid
+from ..geometry._rotation import rotvec_to_matrix
+from ..solvers._linalg import cholesky_solve
+
+__all__ = ["Measurements", "Solved", "TrackRows", "plane_rows", "solve_frame"]
+
+#: Tukey's biweight constant (95% efficiency under Gaussian noise).
+TUKEY = 4.685
+
+
+class Measurements(NamedTuple):
+    """Pinhole-frame measurements: edge lines and points, with their model points."""
+
+    edge_model: np.ndarray  # (E, 3)
+    edge_lines: np.ndarray  # (E, 3): n_x u + n_y v + c = 0, |n| = 1
+    point_model: np.ndarray  # (P, 3)
+    point_pixels: np.ndarray  # (P, 2)
+
+
+class TrackRows(NamedTuple):
+    """A frame's measurements as planes through the camera centre (module docstring),
+    one unit per measurement: the `E` edge matches first, then the `P` points.
+
+    **Fields:**
+    - `model` `(U, 3)`: each unit's model point.
+    - `planes` `(U, 2, 3)`: its planes (camera frame; an edge's second one zero).
+    - `mask` `(U, 2)` bool: which rows exist (an edge's second does not).
+    - `point` `(U,)` bool: a KLT point (two rows) or an edge match (one).
+    - `weights` `(U,)`: each unit's weight in the last step of the solve (Tukey's
+      weight over the square of its kind's robust scale, px^-2; 0 where rejected).
+    """
+
+    model: np.ndarray
+    planes: np.ndarray
+    mask: np.ndarray
+    point: np.ndarray
+    weights: np.ndarray
+
+
+def track_rows(K: np.ndarray, meas: Measurements) -> TrackRows:
+    """`TrackRows` of the measurements of the pinhole camera `K` (weights 1)."""
+    E, P = len(meas.edge_model), len(meas.point_model)
+    planes = np.zeros((E + P, 2, 3))
+    planes[:E, 0] = np.asarray(meas.edge_lines, np.float64).reshape(E, 3) @ K
+    uv = np.asarray(meas.point_pixels, np.float64).reshape(P, 2)
+    planes[E:] = K[:2]
+    planes[E:, :, 2] -= uv
+    mask = np.ones((E + P, 2), bool)
+    mask[:E, 1] = False
+    model = np.vstack([np.reshape(meas.edge_model, (E, 3)), np.reshape(meas.point_model, (P, 3))])
+    point = np.arange(E + P) >= E
+    return TrackRows(model.astype(np.float64), planes, mask, point, np.ones(E + P))
+
+
+def plane_rows(
+    R: Float[ArrayLike, "3 3"],
+    t: Float[ArrayLike, " 3"],
+    model: Float[ArrayLike, "U 3"],
+    planes: Float[ArrayLike, "U 2 3"],
+    mask: Bool[ArrayLike, "U 2"],
+    centre: Float[ArrayLike, " 3"] | None = None,
+) -> tuple[Float[Array, "U 2"], Float[Array, "U 2 6"], Float[Array, " 3"]]:
+    """The residuals `(U, 2)` (px) and rows `(U, 2, 6)` (d residual / d(dt, r), the
+    rotation about `centre`) at pose `(R, t)`, 0 where masked out, and the centre
+    (default: the centroid of the units' points). One problem; `jax.vmap` it."""
+    R, t, model, planes, mask = map(jnp.asarray, (R, t, model, planes, mask))
+    X = model @ R.T + t[None, :]
+    z = jnp.maximum(X[:, 2], jnp.asarray(1e-12, X.dtype))
+    r = jnp.einsum("ukc,uc->uk", planes, X) / z[:, None]
+    e3 = jnp.asarray([0.0, 0.0, 1.0], X.dtype)
+    normal = (planes - r[:, :, None] * e3[None, None, :]) / z[:, None, None]
+    centre = masked_centroid(X, jnp.any(mask, axis=1)) if centre is None else jnp.asarray(centre)
+    arm = jnp.broadcast_to((X - centre[None, :])[:, None, :], normal.shape)
+    J = jnp.concatenate([normal, jnp.cross(arm, normal)], axis=-1)
+    return jnp.where(mask, r, 0), jnp.where(mask[:, :, None], J, 0), centre
+
+
+def _robust_scale(residual: Array, selected: Array, min_scale: Array) -> Array:
+    """`max(1.4826 median(residual[selected]), min_scale)`, 1 when none is selected."""
+    count = jnp.sum(selected)
+    last = residual.shape[0] - 1
+    ordered = jnp.sort(jnp.where(selected, residual, jnp.inf))
+    low = ordered[jnp.clip((count - 1) // 2, 0, last)]
+    high = ordered[jnp.clip(count // 2, 0, last)]
+    scale = jnp.maximum(1.4826 * (0.5 * (low + high)), min_scale)
+    return jnp.where(count > 0, scale, jnp.ones((), residual.dtype))
+
+
+def _tukey(residual: Array, scale: Array) -> Array:
+    z = residual / (TUKEY * scale)
+    return jnp.where(jnp.abs(z) < 1, (1 - z * z) ** 2, 0)
+
+
+class _State(NamedTuple):
+    """The robust solve's loop state."""
+
+    step: Array  # steps made
+    R: Array
+    t: Array
+    weights: Array  # (U,) Tukey weight over the kind's scale squared, of the last step
+    tukey: Array  # (U,) Tukey weight of the last step
+    rms: Array  # weighted RMS residual (all rows) before the last step taken
+    judged: Array  # the edges' (the points' without edges)
+    ok: Array
+    stop: Array
+
+
+def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_scale):
+    """The robust small-movement solve of one frame (module docstring), padded shapes.
+    Returns `(R, t, tukey (U,), weights (U,), rms, judged, ok)`."""
+    dtype = planes.dtype
+    unit = jnp.any(mask, axis=1)
+    edge, pt = unit & ~point, unit & point
+    need = jnp.maximum(min_rows, 6)
+    tiny = jnp.finfo(dtype).tiny
+
+    def body(s: _State) -> _State:
+        r, J, centre = plane_rows(s.R, s.t, model, planes, mask)
+        residual = jnp.sqrt(jnp.sum(r * r, axis=1))  # |edge distance|, |point error|
+        s_e = _robust_scale(residual, edge, min_scale)
+        s_p = _robust_scale(residual, pt, min_scale)
+        scale = jnp.where(point, s_p, s_e)
+        tukey = jnp.where(unit, _tukey(residual, scale), 0)
+        w = tukey[:, None] * mask  # row weights
+        enough = jnp.sum(w > 0) >= need
+        weights = tukey / (scale * scale)
+        Jw = J * (weights[:, None] * mask)[:, :, None]
+        A = jnp.einsum("uki,ukj->ij", Jw, J)
+        b = -jnp.einsum("uki,uk->i", Jw, r)
+        col = jnp.sqrt(jnp.maximum(jnp.diagonal(A), tiny))
+        x = cholesky_solve(A / (col[:, None] * col[None, :]), b / col) / col
+        finite = jnp.all(jnp.isfinite(x))
+        x = jnp.where(finite, x, 0)
+        dR = rotvec_to_matrix(x[3:])
+        R1, t1 = dR @ s.R, dR @ (s.t - centre) + centre + x[:3]
+        wr2 = w * r * r
+        rms = jnp.sqrt(jnp.sum(wr2) / jnp.maximum(jnp.sum(w), tiny))
+        kind = jnp.where(jnp.any(edge & (tukey > 0)), edge, pt)[:, None]
+        judged = jnp.sqrt(
+            jnp.sum(jnp.where(kind, wr2, 0)) / jnp.maximum(jnp.sum(jnp.where(kind, w, 0)), tiny)
+        )
+        take = enough & finite
+        return _State(
+            s.step + 1,
+            jnp.where(take, R1, s.R),
+            jnp.where(take, t1, s.t),
+            weights,
+            tukey,
+            jnp.where(take, rms, s.rms),
+            jnp.where(take, judged, s.judged),
+            jnp.where(enough, s.ok | finite, False),
+            ~take,
+        )
+
+    zero = jnp.zeros((), dtype)
+    start = _State(jnp.zeros((), jnp.int32), R, t, jnp.zeros(unit.shape, dtype),
+                   jnp.zeros(unit.shape, dtype), zero, zero, jnp.zeros((), bool),
+                   jnp.zeros((), bool))  # fmt: skip
+    s = jax.lax.while_loop(lambda s: (s.step < iterations) & ~s.stop, body, start)
+    return s.R, s.t, s.tukey, s.weights, s.rms, s.judged, s.ok
+
+
+#: The compiled solve: one program per bucket of units (and dtype), stored on disk.
+robust_solve = stored_jit(_robust_solve)
+
+
+class Solved(NamedTuple):
+    """A frame's solve: the pose, the Tukey weights of the edge matches `(E,)` and of
+    the points `(P,)` in the last step, the weighted RMS residual (px) over all rows and
+    over the edges' (the points' without edges), whether the pose was solved, and the
+    measurements with their last weights (for `refine_track`)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    w_e: np.ndarray
+    w_p: np.ndarray
+    rms: float
+    judged: float
+    ok: bool
+    rows: TrackRows
+
+
+def _float() -> type:
+    return jax.dtypes.canonicalize_dtype(np.float64).type
+
+
+def pad_rows(rows: TrackRows, size: int) -> TrackRows:
+    """`rows` padded with masked-out units to `size` units, in JAX's default float."""
+    extra = size - len(rows.point)
+    f = _float()
+    return TrackRows(
+        np.pad(rows.model, ((0, extra), (0, 0))).astype(f),
+        np.pad(rows.planes, ((0, extra), (0, 0), (0, 0))).astype(f),
+        np.pad(rows.mask, ((0, extra), (0, 0))),
+        np.pad(rows.point, (0, extra)),
+        np.pad(rows.weights, (0, extra)).astype(f),
+    )
+
+
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    """The rotation nearest `R`."""
+    u, _, vt = np.linalg.svd(R)
+    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+
+def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
+                min_scale: float) -> Solved:  # fmt: skip
+    """The robust small-movement solve of one frame from `(R, t)` (module docstring),
+    compiled; numpy in and out (float64)."""
+    rows = track_rows(K, meas)
+    E, U = len(meas.edge_model), len(rows.point)
+    if rows.mask.sum() < max(min_rows, 6):  # too few rows to weigh: nothing to solve
+        return Solved(R, t, np.zeros(E), np.zeros(U - E), 0.0, 0.0, False,
+                      rows._replace(weights=np.zeros(U)))  # fmt: skip
+    padded = pad_rows(rows, bucket_points(U))
+    f = _float()
+    out = robust_solve(np.asarray(R, f), np.asarray(t, f), padded.model, padded.planes,
+                       padded.mask, padded.point, np.int32(iterations), np.int32(min_rows),
+                       f(min_scale))  # fmt: skip
+    R1, t1, tukey, weights, rms, judged, ok = (np.asarray(a) for a in out)
+    tukey, weights = tukey[:U].astype(np.float64), weights[:U].astype(np.float64)
+    return Solved(_orthonormal(R1.astype(np.float64)), t1.astype(np.float64), tukey[:E],
+                  tukey[E:], float(rms), float(judged), bool(ok),
+                  rows._replace(weights=weights))  # fmt: skip
