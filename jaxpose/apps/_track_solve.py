@@ -38,7 +38,7 @@ solvers' own.
 **Fixed shapes.** The measurements are padded (masked out) to `bucket_points(E + P)`
 units (8, 16, ..., 1024, then powers of two), one unit per edge match (one row, the
 second masked) or KLT point (two rows), so a handful of programs serve every frame; each
-is compiled once and stored on disk (`jaxpose.api._programs.stored_jit`): a new process
+is compiled once and stored on disk (`jaxpose.api._programs.program`): a new process
 loads it. The dtype is JAX's default float (float64 under x64).
 """
 
@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ..api._programs import bucket_points, stored_jit
+from ..api._programs import bucket_points, program
 from ..geometry._numerics import masked_centroid
 from ..geometry._rotation import rotvec_to_matrix
 from ..solvers._linalg import cholesky_solve
@@ -91,19 +91,27 @@ class TrackRows(NamedTuple):
     weights: np.ndarray
 
 
-def track_rows(K: np.ndarray, meas: Measurements) -> TrackRows:
-    """`TrackRows` of the measurements of the pinhole camera `K` (weights 1)."""
+def track_rows(K: np.ndarray, meas: Measurements, size: int | None = None,
+               dtype=np.float64) -> TrackRows:  # fmt: skip
+    """`TrackRows` of the measurements of the pinhole camera `K` (weights 1), padded
+    with masked-out units to `size` units (default: none)."""
     E, P = len(meas.edge_model), len(meas.point_model)
-    planes = np.zeros((E + P, 2, 3))
-    planes[:E, 0] = np.asarray(meas.edge_lines, np.float64).reshape(E, 3) @ K
-    uv = np.asarray(meas.point_pixels, np.float64).reshape(P, 2)
-    planes[E:] = K[:2]
-    planes[E:, :, 2] -= uv
-    mask = np.ones((E + P, 2), bool)
-    mask[:E, 1] = False
-    model = np.vstack([np.reshape(meas.edge_model, (E, 3)), np.reshape(meas.point_model, (P, 3))])
-    point = np.arange(E + P) >= E
-    return TrackRows(model.astype(np.float64), planes, mask, point, np.ones(E + P))
+    U = E + P if size is None else size
+    planes = np.zeros((U, 2, 3), dtype)
+    planes[:E, 0] = np.reshape(meas.edge_lines, (E, 3)) @ K
+    planes[E : E + P] = K[:2]
+    planes[E : E + P, :, 2] -= np.reshape(meas.point_pixels, (P, 2))
+    mask = np.zeros((U, 2), bool)
+    mask[: E + P, 0] = True
+    mask[E : E + P, 1] = True
+    model = np.zeros((U, 3), dtype)
+    model[:E] = np.reshape(meas.edge_model, (E, 3))
+    model[E : E + P] = np.reshape(meas.point_model, (P, 3))
+    point = np.zeros(U, bool)
+    point[E : E + P] = True
+    weights = np.zeros(U, dtype)
+    weights[: E + P] = 1.0
+    return TrackRows(model, planes, mask, point, weights)
 
 
 def plane_rows(
@@ -120,7 +128,9 @@ def plane_rows(
     R, t, model, planes, mask = map(jnp.asarray, (R, t, model, planes, mask))
     X = model @ R.T + t[None, :]
     z = jnp.maximum(X[:, 2], jnp.asarray(1e-12, X.dtype))
-    r = jnp.einsum("ukc,uc->uk", planes, X) / z[:, None]
+    # (elementwise products and sums: a dot_general batched over the units runs one tiny
+    # product at a time on XLA:CPU)
+    r = jnp.sum(planes * X[:, None, :], axis=-1) / z[:, None]
     e3 = jnp.asarray([0.0, 0.0, 1.0], X.dtype)
     normal = (planes - r[:, :, None] * e3[None, None, :]) / z[:, None, None]
     centre = masked_centroid(X, jnp.any(mask, axis=1)) if centre is None else jnp.asarray(centre)
@@ -129,15 +139,37 @@ def plane_rows(
     return jnp.where(mask, r, 0), jnp.where(mask[:, :, None], J, 0), centre
 
 
-def _robust_scale(residual: Array, selected: Array, min_scale: Array) -> Array:
-    """`max(1.4826 median(residual[selected]), min_scale)`, 1 when none is selected."""
-    count = jnp.sum(selected)
-    last = residual.shape[0] - 1
-    ordered = jnp.sort(jnp.where(selected, residual, jnp.inf))
-    low = ordered[jnp.clip((count - 1) // 2, 0, last)]
-    high = ordered[jnp.clip(count // 2, 0, last)]
-    scale = jnp.maximum(1.4826 * (0.5 * (low + high)), min_scale)
-    return jnp.where(count > 0, scale, jnp.ones((), residual.dtype))
+def _robust_scales(residual: Array, kinds: Array, min_scale: Array) -> Array:
+    """`max(1.4826 median(residual[kind]), min_scale)` for each row of `kinds` `(k, U)`
+    (bool), 1 where a kind has none. `residual` is `>= 0`.
+
+    The median is that of `np.median` (the mean of the two middle values for an even
+    count), found without sorting (XLA:CPU sorts through a comparator call per
+    comparison: 150 us for 512 values here) by bisection on the bits of the float
+    (monotone for values `>= 0`): the `j`-th smallest value is the least `v` with at
+    least `j + 1` values `<= v`, exact after one step per bit."""
+    dtype = residual.dtype
+    itype = jnp.int64 if dtype == jnp.float64 else jnp.int32
+    bits = jnp.iinfo(itype).bits
+    top = jnp.iinfo(itype).max
+    keys = jnp.where(kinds, jax.lax.bitcast_convert_type(residual, itype)[None, :], top)
+    count = jnp.sum(kinds, axis=1).astype(itype)  # (k,)
+    rank = jnp.concatenate([jnp.maximum(count - 1, 0) // 2, count // 2])  # (2k,)
+    keys = jnp.concatenate([keys, keys])  # (2k, U): each kind's keys per rank asked
+
+    def body(_, bounds):
+        low, high = bounds
+        mid = low + (high - low) // 2
+        enough = jnp.sum(keys <= mid[:, None], axis=1) >= rank + 1
+        return jnp.where(enough, low, mid + 1), jnp.where(enough, mid, high)
+
+    start = (jnp.zeros_like(rank), jnp.full_like(rank, top))
+    low, _ = jax.lax.fori_loop(0, bits, body, start)
+    middle = jax.lax.bitcast_convert_type(low, dtype)
+    k = kinds.shape[0]
+    median = 0.5 * (middle[:k] + middle[k:])
+    scale = jnp.maximum(1.4826 * median, min_scale)
+    return jnp.where(count > 0, scale, jnp.ones((), dtype))
 
 
 def _tukey(residual: Array, scale: Array) -> Array:
@@ -171,8 +203,7 @@ def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_sc
     def body(s: _State) -> _State:
         r, J, centre = plane_rows(s.R, s.t, model, planes, mask)
         residual = jnp.sqrt(jnp.sum(r * r, axis=1))  # |edge distance|, |point error|
-        s_e = _robust_scale(residual, edge, min_scale)
-        s_p = _robust_scale(residual, pt, min_scale)
+        s_e, s_p = _robust_scales(residual, jnp.stack([edge, pt]), min_scale)
         scale = jnp.where(point, s_p, s_e)
         tukey = jnp.where(unit, _tukey(residual, scale), 0)
         w = tukey[:, None] * mask  # row weights
@@ -215,7 +246,7 @@ def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_sc
 
 
 #: The compiled solve: one program per bucket of units (and dtype), stored on disk.
-robust_solve = stored_jit(_robust_solve)
+_PROGRAM = program(_robust_solve)
 
 
 class Solved(NamedTuple):
@@ -238,41 +269,41 @@ def _float() -> type:
     return jax.dtypes.canonicalize_dtype(np.float64).type
 
 
-def pad_rows(rows: TrackRows, size: int) -> TrackRows:
-    """`rows` padded with masked-out units to `size` units, in JAX's default float."""
-    extra = size - len(rows.point)
-    f = _float()
-    return TrackRows(
-        np.pad(rows.model, ((0, extra), (0, 0))).astype(f),
-        np.pad(rows.planes, ((0, extra), (0, 0), (0, 0))).astype(f),
-        np.pad(rows.mask, ((0, extra), (0, 0))),
-        np.pad(rows.point, (0, extra)),
-        np.pad(rows.weights, (0, extra)).astype(f),
-    )
-
-
 def _orthonormal(R: np.ndarray) -> np.ndarray:
     """The rotation nearest `R`."""
     u, _, vt = np.linalg.svd(R)
     return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
 
+#: The compiled solve's executables by (bucket, dtype), once each has run (a program
+#: read from disk is proven by its first run, in `Program.__call__`): called directly.
+_READY: dict[tuple, object] = {}
+
+
 def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
                 min_scale: float) -> Solved:  # fmt: skip
     """The robust small-movement solve of one frame from `(R, t)` (module docstring),
     compiled; numpy in and out (float64)."""
-    rows = track_rows(K, meas)
-    E, U = len(meas.edge_model), len(rows.point)
-    if rows.mask.sum() < max(min_rows, 6):  # too few rows to weigh: nothing to solve
-        return Solved(R, t, np.zeros(E), np.zeros(U - E), 0.0, 0.0, False,
+    E, P = len(meas.edge_model), len(meas.point_model)
+    U = E + P
+    if E + 2 * P < max(min_rows, 6):  # too few rows to weigh: nothing to solve
+        rows = track_rows(K, meas)
+        return Solved(R, t, np.zeros(E), np.zeros(P), 0.0, 0.0, False,
                       rows._replace(weights=np.zeros(U)))  # fmt: skip
-    padded = pad_rows(rows, bucket_points(U))
     f = _float()
-    out = robust_solve(np.asarray(R, f), np.asarray(t, f), padded.model, padded.planes,
-                       padded.mask, padded.point, np.int32(iterations), np.int32(min_rows),
-                       f(min_scale))  # fmt: skip
+    size = bucket_points(U)
+    padded = track_rows(K, meas, size, f)
+    args = (np.asarray(R, f), np.asarray(t, f), padded.model, padded.planes, padded.mask,
+            padded.point, np.int32(iterations), np.int32(min_rows), f(min_scale))  # fmt: skip
+    run = _READY.get((size, f))
+    if run is None:
+        out = _PROGRAM(*args)
+        _READY[size, f] = _PROGRAM.executable(*args)
+    else:
+        out = run(*args)  # type: ignore[operator]
     R1, t1, tukey, weights, rms, judged, ok = (np.asarray(a) for a in out)
-    tukey, weights = tukey[:U].astype(np.float64), weights[:U].astype(np.float64)
+    tukey = tukey[:U].astype(np.float64)
+    rows = TrackRows(padded.model[:U].astype(np.float64), padded.planes[:U].astype(np.float64),
+                     padded.mask[:U], padded.point[:U], weights[:U].astype(np.float64))  # fmt: skip
     return Solved(_orthonormal(R1.astype(np.float64)), t1.astype(np.float64), tukey[:E],
-                  tukey[E:], float(rms), float(judged), bool(ok),
-                  rows._replace(weights=weights))  # fmt: skip
+                  tukey[E:], float(rms), float(judged), bool(ok), rows)  # fmt: skip

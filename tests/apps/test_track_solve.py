@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxpose.apps._track_solve import Measurements, pad_rows, plane_rows, solve_frame, track_rows
+from jaxpose.apps._track_solve import Measurements, plane_rows, solve_frame, track_rows
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
 TUKEY = 4.685
@@ -161,7 +161,7 @@ def test_plane_rows_are_the_derivative_of_the_residuals():
     from jaxpose.geometry._rotation import rotvec_to_matrix
 
     meas, R, t = _problem(10, 20, 10)
-    rows = pad_rows(track_rows(K, meas), 32)
+    rows = track_rows(K, meas, 32)
     centre = jnp.asarray([0.5, -0.3, 81.0])
 
     def residual(x):
