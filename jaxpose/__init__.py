@@ -18,6 +18,7 @@ from . import solvers as solvers
 from . import strategy as strategy
 from . import viz as viz
 from .api import Solution as Solution
+from .api import minima as minima
 from .api import solve as solve
 from .api import solve_batch as solve_batch
 from .api import solve_many as solve_many

@@ -1,11 +1,13 @@
 """Layer 4, the entry points: `solve` (JAX-native, differentiable), `solve_many` (batch-first),
-`solve_batch` (chunked and sharded batches from numpy), and `solve_pnp`/`solve_pnp_batch`/
+`solve_batch` (chunked and sharded batches from numpy), `minima` (every local minimum
+found, beside a `Solution`), and `solve_pnp`/`solve_pnp_batch`/
 `solve_pnp_ransac`/`solve_pnp_generic` (OpenCV conventions, numpy in and out).
 """
 
 from ._batch import batch_devices as batch_devices
 from ._batch import batch_mesh as batch_mesh
 from ._batch import run_batched as run_batched
+from ._generic import minima as minima
 from ._generic import solve_pnp_generic as solve_pnp_generic
 from ._pnp import solve_pnp as solve_pnp
 from ._pnp import solve_pnp_batch as solve_pnp_batch

@@ -1,12 +1,14 @@
-"""Drop-in for `cv2.solvePnPGeneric`: every distinct local minimum of Eq. 8 that jaxpose
-finds, sorted by reprojection error, in OpenCV's conventions.
+"""Every distinct local minimum of Eq. 8 that jaxpose finds, sorted by reprojection error:
+`minima` (JAX-native, beside `jaxpose.solve`'s `Solution`) and `solve_pnp_generic` (the
+drop-in for `cv2.solvePnPGeneric`, in OpenCV's conventions).
 
-The first is `solve_pnp`'s answer. The others come from the starts of
+The first is the answer. The others come from the starts of
 `jaxpose.strategy.local_minima`, refined each to its own local minimum in one batched
-program (`_minima_opencv`): for a coplanar model the answer's planar partner and the two
-poses of the plane's homography (IPPE's two, `jaxpose.strategy.planar_poses`), and for
-any model the best-scored distinct three-point roots of the answer's triplets. A minimum
-is kept when its run is accepted and it is distinct from those kept before it.
+program (`_minima_program`, one per bucket of points, shared by both entry points): for a
+coplanar model the answer's planar partner and the two poses of the plane's homography
+(IPPE's two, `jaxpose.strategy.planar_poses`), and for any model the best-scored distinct
+three-point roots of the answer's triplets. A minimum is kept when its run is accepted
+and it is distinct from those kept before it.
 """
 
 from __future__ import annotations
@@ -19,32 +21,152 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
+from jax.core import Tracer
+from jaxtyping import ArrayLike, Bool, Real
 
-from ..geometry import Pose, camera_matrix, matrix_to_rotvec, no_type_check, rotvec_to_matrix
-from ..strategy import SAME_MINIMUM, Options, local_minima, split_values, with_values
-from ._pnp import _pack, answer_opencv, opencv_problem, refine_opencv
-from ._programs import program
+from ..geometry import Pose, check_problem, no_type_check
+from ..strategy import (
+    SAME_MINIMUM,
+    TRACED,
+    Minima,
+    Options,
+    Solution,
+    local_minima,
+    rank_minima,
+    resolve,
+    split_values,
+    with_values,
+)
+from ._pnp import answer_opencv, opencv_problem, refine_opencv
+from ._programs import bucket_points, program
 
-__all__ = ["solve_pnp_generic"]
+__all__ = ["minima", "solve_pnp_generic"]
 
 
-def _minima_opencv(packed, options: Options):
-    """The other local minima of the problem whose answer is `(rvec, tvec)` (the program
-    of `solve_pnp_generic`; `jaxpose.strategy.local_minima`): `packed` the traced values
-    (4), `rvec`, `tvec`, then `_pack`'s vector. Returns `(found, rvec, tvec)` of each
-    start, one row of 7 each (`found` 1 for a distinct minimum, 0 for a placeholder)."""
-    answer = Pose(rotvec_to_matrix(packed[4:7]), packed[7:10])
-    options = with_values(options, packed[:4])
-    packed = packed[10:]
-    n = (packed.shape[0] - 9) // 6
-    K = packed[:9].reshape(3, 3)
-    obj = packed[9 : 9 + 3 * n].reshape(n, 3)
-    img = packed[9 + 3 * n : 9 + 5 * n].reshape(n, 2)
-    mask = packed[9 + 5 * n :] > 0.5
-    minima = local_minima(camera_matrix(K), obj, img, mask, answer, options)
-    found = minima.found.astype(packed.dtype)[:, None]
-    rvecs = jax.vmap(matrix_to_rotvec)(minima.pose.R)
-    return jnp.concatenate([found, rvecs, minima.pose.t], axis=1)
+def _minima_program(values, camera, model, image, mask, R, t, options: Options) -> Minima:
+    """`local_minima` of one problem whose answer is `Pose(R, t)`, `options` a static key
+    and `values` its traced values (`jaxpose.strategy.split_values`): the stored program
+    of `minima` and `solve_pnp_generic` (one per bucket of points)."""
+    options = with_values(options, values)
+    return local_minima(camera, model, image, mask, Pose(R, t), options)
+
+
+_minima_jitted = jax.jit(_minima_program, static_argnames=("options",))
+
+
+def _check_solution(solution: object) -> Solution:
+    """`solution` checked: a `Solution` of one problem (`R (3, 3)`, `t (3,)`); a
+    `ValueError` naming `solution` otherwise."""
+    if not isinstance(solution, Solution):
+        raise ValueError(f"solution must be a jaxpose.Solution, got {type(solution).__name__}")
+    pose = solution.pose
+    if not isinstance(pose, Pose):
+        raise ValueError("solution.pose must be a jaxpose.Pose")
+    for name, x, shape in (
+        ("pose.R", pose.R, (3, 3)),
+        ("pose.t", pose.t, (3,)),
+        ("error", solution.error, ()),
+        ("accepted", solution.accepted, ()),
+    ):
+        got = tuple(getattr(x, "shape", np.shape(x)))
+        if got != shape:
+            raise ValueError(
+                f"solution.{name} must have shape {shape} (one problem: vmap `minima` for "
+                f"a batch), got {got}"
+            )
+    return solution
+
+
+def _no_minima(like: Solution) -> Minima:
+    """`local_minima`'s result with no start (`method="three_point"`): no slot."""
+    dtype = jnp.result_type(like.pose.t)
+    pose = Pose(jnp.zeros((0, 3, 3), dtype), jnp.zeros((0, 3), dtype))
+    return Minima(pose, jnp.zeros(0, dtype), jnp.zeros(0, bool))
+
+
+# The entry points check their arguments themselves (`check_problem`: a `ValueError`
+# naming the argument), so no run-time type check comes before theirs.
+@no_type_check
+def minima(
+    solution: Solution,
+    camera: Real[ArrayLike, "3 4"],
+    model: Real[ArrayLike, "n 3"],
+    image: Real[ArrayLike, "n 2"],
+    mask: Bool[ArrayLike, " n"] | None = None,
+    *,
+    options: Options | None = None,
+    **changes: Any,
+) -> Minima:
+    """Every distinct local minimum of Eq. 8 found for one problem, its answer among them,
+    sorted by reprojection error: what `solve_pnp_generic` returns, for `jaxpose.solve`'s
+    `Solution` (opt-in: `solve` itself does no more work for it).
+
+    The other minima are those of `jaxpose.strategy.local_minima` (module docstring):
+    for a coplanar model its planar partner and IPPE's two poses, for any model the
+    best distinct three-point roots, each refined to its local minimum of Eq. 8, checked
+    to be one (positive definite Hessian, no Newton step) and kept when distinct from
+    the answer and from those before it (`SAME_MINIMUM`). `method="three_point"`: the
+    answer alone.
+
+    **Arguments:** `solution`, the `Solution` of `jaxpose.solve(camera, model, image,
+    mask, options=options)`; the problem and `options` (`**changes`) as given to it.
+
+    **Returns:** a `jaxpose.strategy.Minima` of fixed shapes (`S = 4 + MINIMA_ROOTS`
+    slots; `1` with `method="three_point"`): `pose` (`R (S, 3, 3)`, `t (S, 3)`, model to
+    world), `error` (Eq. 8, px) and `found`, the slots holding a minimum first (the
+    answer among them, where it was accepted; none where it was not), by increasing
+    error, then placeholders (identity pose, error 0): never a NaN. `found.sum()` is
+    `solve_pnp_generic`'s `count` for the same problem without distortion.
+
+    Pure, for ONE problem: composes with `jax.jit` and `jax.vmap` (batch `solution` and
+    the arrays); under `jax.grad` each minimum carries the implicit derivative of its
+    own optimality conditions, as `solve`'s answer does (`derivative=True`). A plain
+    call runs a stored program, one per bucket of points (values only).
+    """
+    options = resolve(options, changes)
+    solution = _check_solution(solution)
+    check_problem(camera, model, image, mask)
+    if options.method == "three_point":
+        return rank_minima(solution, _no_minima(solution))
+    n = np.shape(model)[0]
+    arrays = (camera, model, image, mask, *jax.tree.leaves(solution))
+    traced = any(isinstance(x, Tracer) for x in arrays)
+    values_traced = any(isinstance(getattr(options, f), Tracer) for f in TRACED)
+    if values_traced:
+        mask = jnp.ones(n, bool) if mask is None else jnp.asarray(mask, bool)
+        local = local_minima(camera, model, image, mask, solution.pose, options)
+    elif traced:
+        mask = jnp.ones(n, bool) if mask is None else jnp.asarray(mask, bool)
+        key, values = split_values(options)
+        R, t = solution.pose
+        local = _minima_jitted(values, camera, model, image, mask, R, t, options=key)
+    else:
+        local = _stored_minima(camera, model, image, mask, solution.pose, options)
+    return rank_minima(solution, local)
+
+
+def _stored_minima(camera, model, image, mask, answer: Pose, options: Options) -> Minima:
+    """`local_minima` on concrete inputs through its stored program: the points padded to
+    their bucket (`bucket_points`, the padding repeating the first match, masked out),
+    values only (`derivative=False`)."""
+    camera, model, image = (np.asarray(x) for x in (camera, model, image))
+    dtype = jnp.result_type(float, camera.dtype, model.dtype, image.dtype)
+    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    n = model.shape[0]
+    mask = np.ones(n, bool) if mask is None else np.asarray(mask, bool)
+    size = bucket_points(n)
+
+    def points(x):
+        fill = np.zeros((size - n, *x.shape[1:]), x.dtype)
+        if x.dtype != np.bool_:
+            fill[:] = x[:1]
+        return np.concatenate([x, fill])
+
+    model, image, mask = (points(x) for x in (model, image, mask))
+    key, values = split_values(dataclasses.replace(options, derivative=False))
+    args = (values, camera, model, image, mask, *answer)
+    args = tuple(np.asarray(a, dtype) if a is not mask else a for a in args)
+    return program(_minima_program, key)(*args)
 
 
 def _same(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> bool:
@@ -104,15 +226,16 @@ def solve_pnp_generic(
     options, K, n = problem.options, problem.K, problem.count
     poses = [(out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy())]
     if options.method != "three_point":
-        key, values = split_values(dataclasses.replace(options, derivative=False))
-        head = np.concatenate([values, out[1:7]])
-        packed = np.concatenate([head, _pack(K, problem.obj, problem.img, problem.mask)])
+        camera = np.concatenate([K, np.zeros((3, 1))], axis=1)
+        answer = Pose(cv2.Rodrigues(out[1:4])[0], out[4:7])
         with jax.enable_x64(True):
-            rows = np.array(program(_minima_opencv, key)(packed))
-        for row in rows[rows[:, 0] > 0.5]:
+            local = _stored_minima(camera, problem.obj, problem.img, problem.mask, answer, options)
+            R, t, found = (np.asarray(x, np.float64) for x in (*local.pose, local.found))
+        for Ri, ti in zip(R[found > 0.5], t[found > 0.5], strict=True):
+            row = np.concatenate([cv2.Rodrigues(Ri)[0].ravel(), ti])
             if problem.dist is not None:
-                row[1:] = refine_opencv(problem, row[1:4], row[4:7])
-            other = (row[1:4].reshape(3, 1).copy(), row[4:7].reshape(3, 1).copy())
+                row = refine_opencv(problem, row[:3], row[3:])
+            other = (row[:3].reshape(3, 1).copy(), row[3:].reshape(3, 1).copy())
             if np.all(np.isfinite(row)) and not any(_same(p, other) for p in poses):
                 poses.append(other)
     obj, raw = problem.obj[:n], problem.raw[:n]

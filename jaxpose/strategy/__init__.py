@@ -22,6 +22,7 @@ from ._methods import run_method as run_method
 from ._minima import SAME_MINIMUM as SAME_MINIMUM
 from ._minima import Minima as Minima
 from ._minima import local_minima as local_minima
+from ._minima import rank_minima as rank_minima
 from ._mixed import MixedResult as MixedResult
 from ._mixed import mixed as mixed
 from ._mixed import mixed_from_initial as mixed_from_initial

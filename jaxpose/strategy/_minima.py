@@ -35,7 +35,7 @@ from ..solvers._kernel_linear import matches_from_observations, pixel_error_kern
 from ..solvers._linalg import positive_definite_solve
 from ._best import _roots, answer_triplets, distinct_best
 from ._options import Options
-from ._pipeline import solve_problems
+from ._pipeline import Solution, solve_problems
 from ._planar import planar_partner, planar_poses
 
 __all__ = [
@@ -47,6 +47,7 @@ __all__ = [
     "is_minimum",
     "local_minima",
     "minimum_starts",
+    "rank_minima",
 ]
 
 #: Three-point roots refined by `local_minima` (the best-scored distinct ones).
@@ -70,11 +71,15 @@ SAME_MINIMUM = 1e-4
 
 
 class Minima(NamedTuple):
-    """The local minima found from each start of `minimum_starts` (leading axis `S`).
+    """Local minima of Eq. 8 in fixed shapes (leading axis `S`), with a mask.
 
-    **Fields:** `pose` (`R (S, 3, 3)`, `t (S, 3)`); `error` (Eq. 8, px); `found`:
-    whether the start's run was accepted and its minimum is distinct from the answer and
-    from the minima of the starts before it (the others are placeholders)."""
+    **Fields:** `pose` (`R (S, 3, 3)`, `t (S, 3)`, model to world); `error` (Eq. 8, px);
+    `found`: whether the slot holds a minimum (the others are placeholders). From
+    `local_minima`, one slot per start of `minimum_starts`, `found` where the start's run
+    was accepted and its minimum is distinct from the answer and from the minima of the
+    starts before it; from `rank_minima` (`jaxpose.minima`), the answer first among them
+    and every slot sorted by error, the minima before the placeholders (the identity
+    pose, error 0)."""
 
     pose: Pose
     error: Float[Array, " S"]
@@ -160,3 +165,25 @@ def local_minima(camera, model, image, mask, answer: Pose, options: Options) -> 
             keep = keep & ~(distinct[j] & same_minimum(pose_i, pose_j))
         distinct.append(keep)
     return Minima(sol.pose, sol.error, jnp.stack(distinct))
+
+
+def rank_minima(solution: Solution, minima: Minima) -> Minima:
+    """The answer of `solution` and the other minima of `local_minima` (its `minima`) as
+    one `Minima` of `1 + S` slots sorted by Eq. 8 error: the `found` ones first (the
+    answer among them, found where it was accepted; none where it was not), then the
+    placeholders, the identity pose with error 0 (never a NaN). One problem; pure, for
+    `jit`, `vmap` and `grad` (the order carries no derivative, the poses theirs)."""
+    accepted = solution.accepted
+    R = jnp.concatenate([solution.pose.R[None], minima.pose.R])
+    t = jnp.concatenate([solution.pose.t[None], minima.pose.t])
+    error = jnp.concatenate([solution.error[None], minima.error])
+    found = jnp.concatenate([accepted[None], minima.found & accepted])
+    found = found & jnp.isfinite(error)
+    big = jnp.finfo(error.dtype).max
+    order = jnp.argsort(jnp.where(found, error, big), stable=True)
+    R, t, error, found = R[order], t[order], error[order], found[order]
+    eye = jnp.eye(3, dtype=R.dtype)
+    R = jnp.where(found[:, None, None], R, eye)
+    t = jnp.where(found[:, None], t, 0)
+    error = jnp.where(found, error, 0)
+    return Minima(Pose(R, t), error, found)
