@@ -67,6 +67,8 @@ from ._textured import locate_textured as locate_textured
 from ._track import TrackedFrame as TrackedFrame
 from ._track import track as track
 from ._track_options import TrackOptions as TrackOptions
+from ._track_refine import RefinedTrack as RefinedTrack
+from ._track_refine import refine_track as refine_track
 from ._visibility import EdgeSamples as EdgeSamples
 from ._visibility import MeshGeometry as MeshGeometry
 from ._visibility import RayHits as RayHits

@@ -80,8 +80,10 @@ class TrackRows(NamedTuple):
     - `planes` `(U, 2, 3)`: its planes (camera frame; an edge's second one zero).
     - `mask` `(U, 2)` bool: which rows exist (an edge's second does not).
     - `point` `(U,)` bool: a KLT point (two rows) or an edge match (one).
-    - `weights` `(U,)`: each unit's weight in the last step of the solve (Tukey's
-      weight over the square of its kind's robust scale, px^-2; 0 where rejected).
+    - `weights` `(U,)`: each unit's Tukey weight in the last step of the solve (0 where
+      rejected, 1 before any).
+    - `scales` `(U,)`: the robust scale (px) of its kind in that step: in the normal
+      equations a unit counts `weights / scales^2`.
     """
 
     model: np.ndarray
@@ -89,6 +91,7 @@ class TrackRows(NamedTuple):
     mask: np.ndarray
     point: np.ndarray
     weights: np.ndarray
+    scales: np.ndarray
 
 
 def track_rows(K: np.ndarray, meas: Measurements, size: int | None = None,
@@ -111,7 +114,7 @@ def track_rows(K: np.ndarray, meas: Measurements, size: int | None = None,
     point[E : E + P] = True
     weights = np.zeros(U, dtype)
     weights[: E + P] = 1.0
-    return TrackRows(model, planes, mask, point, weights)
+    return TrackRows(model, planes, mask, point, weights, np.ones(U, dtype))
 
 
 def plane_rows(
@@ -183,7 +186,7 @@ class _State(NamedTuple):
     step: Array  # steps made
     R: Array
     t: Array
-    weights: Array  # (U,) Tukey weight over the kind's scale squared, of the last step
+    scales: Array  # (U,) the robust scale of each unit's kind, in the last step
     tukey: Array  # (U,) Tukey weight of the last step
     rms: Array  # weighted RMS residual (all rows) before the last step taken
     judged: Array  # the edges' (the points' without edges)
@@ -193,7 +196,7 @@ class _State(NamedTuple):
 
 def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_scale):
     """The robust small-movement solve of one frame (module docstring), padded shapes.
-    Returns `(R, t, tukey (U,), weights (U,), rms, judged, ok)`."""
+    Returns `(R, t, tukey (U,), scales (U,), rms, judged, ok)`."""
     dtype = planes.dtype
     unit = jnp.any(mask, axis=1)
     edge, pt = unit & ~point, unit & point
@@ -229,7 +232,7 @@ def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_sc
             s.step + 1,
             jnp.where(take, R1, s.R),
             jnp.where(take, t1, s.t),
-            weights,
+            scale,
             tukey,
             jnp.where(take, rms, s.rms),
             jnp.where(take, judged, s.judged),
@@ -238,11 +241,11 @@ def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_sc
         )
 
     zero = jnp.zeros((), dtype)
-    start = _State(jnp.zeros((), jnp.int32), R, t, jnp.zeros(unit.shape, dtype),
+    start = _State(jnp.zeros((), jnp.int32), R, t, jnp.ones(unit.shape, dtype),
                    jnp.zeros(unit.shape, dtype), zero, zero, jnp.zeros((), bool),
                    jnp.zeros((), bool))  # fmt: skip
     s = jax.lax.while_loop(lambda s: (s.step < iterations) & ~s.stop, body, start)
-    return s.R, s.t, s.tukey, s.weights, s.rms, s.judged, s.ok
+    return s.R, s.t, s.tukey, s.scales, s.rms, s.judged, s.ok
 
 
 #: The compiled solve: one program per bucket of units (and dtype), stored on disk.
@@ -301,9 +304,10 @@ def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
         _READY[size, f] = _PROGRAM.executable(*args)
     else:
         out = run(*args)  # type: ignore[operator]
-    R1, t1, tukey, weights, rms, judged, ok = (np.asarray(a) for a in out)
+    R1, t1, tukey, scales, rms, judged, ok = (np.asarray(a) for a in out)
     tukey = tukey[:U].astype(np.float64)
     rows = TrackRows(padded.model[:U].astype(np.float64), padded.planes[:U].astype(np.float64),
-                     padded.mask[:U], padded.point[:U], weights[:U].astype(np.float64))  # fmt: skip
+                     padded.mask[:U], padded.point[:U], tukey,
+                     scales[:U].astype(np.float64))  # fmt: skip
     return Solved(_orthonormal(R1.astype(np.float64)), t1.astype(np.float64), tukey[:E],
                   tukey[E:], float(rms), float(judged), bool(ok), rows)  # fmt: skip
