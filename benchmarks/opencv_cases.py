@@ -2,12 +2,14 @@
 `cv2` and on jaxpose's drop-ins with the same inputs and OpenCV's thresholds.
 
 The facts of each case (how its problems are drawn, its data, its thresholds and its
-pass rule) are those of OpenCV's calib3d tests (`test_solvepnp_ransac.cpp`), written
-here in this project's own code; OpenCV's method is its default, `SOLVEPNP_ITERATIVE`
-(RANSAC: OpenCV's defaults for its flags), jaxpose's its default, the mixed method.
+pass rule) are those of OpenCV's calib3d tests (`test_solvepnp_ransac.cpp`, and the PnP
+cases of `test_usac.cpp`), written here in this project's own code; OpenCV's method is
+its default, `SOLVEPNP_ITERATIVE` (RANSAC: OpenCV's defaults for its flags; the USAC
+cases: each of OpenCV's USAC methods), jaxpose's its default, the mixed method.
 Where this differs from OpenCV's test it says so: fewer trials per accuracy case (1000
-in OpenCV; `--trials`, default 100) and 100 points for the clouds of 500 (jaxpose
-compiles one program per size of problem; the pass rule does not depend on the size).
+in OpenCV; `--trials`, default 100) and 100 points for the clouds of 500 and the USAC
+problems of 3,000 and 1,500 (jaxpose compiles one program per size of problem; the pass
+rule does not depend on the size).
 
 A case passes for a solver when its rule holds (an accuracy case: at least 70% of its
 trials within the thresholds, as OpenCV's). The promise checked by
@@ -85,15 +87,77 @@ def _jp_ransac(obj, img, K, dist, iterations=100, threshold=8.0, confidence=0.99
     return jp.solve_pnp_ransac(obj, img, K, dist, reprojection_error=threshold)
 
 
+#: OpenCV's USAC methods of `test_usac.cpp`'s PnP cases (its parallel one left out there
+#: too: not deterministic).
+USAC_FLAGS = ("USAC_DEFAULT", "USAC_ACCURATE", "USAC_PROSAC", "USAC_FAST", "USAC_MAGSAC")
+
+
+def _cv_usac(obj, img, K, iterations, threshold, confidence) -> list:
+    """`cv2.solvePnPRansac` with each of `USAC_FLAGS`: one `(ok, rvec, tvec, inliers)`
+    each."""
+    out = []
+    for flag in USAC_FLAGS:
+        try:
+            out.append(
+                cv2.solvePnPRansac(
+                    obj,
+                    img,
+                    K,
+                    None,
+                    iterationsCount=int(iterations),
+                    reprojectionError=threshold,
+                    confidence=confidence,
+                    flags=getattr(cv2, flag),
+                )
+            )
+        except cv2.error:
+            out.append((False, np.zeros((3, 1)), np.zeros((3, 1)), None))
+    return out
+
+
+def _cv_usac_params(obj, img, K):
+    """`cv2.solvePnPRansac` with OpenCV's default `cv2.UsacParams()` (threshold 1.5 px,
+    confidence 0.99, 5,000 iterations)."""
+    try:
+        ok, _, r, t, inl = cv2.solvePnPRansac(obj, img, K, np.zeros(4), params=cv2.UsacParams())
+    except cv2.error:
+        return False, np.zeros((3, 1)), np.zeros((3, 1)), None
+    return ok, r, t, inl
+
+
+#: The triplets jaxpose scores in the USAC cases (`max_triplets`; a uniform sample, the
+#: same for every inlier ratio: one compiled program). RANSAC's iterations are OpenCV's
+#: budget, `1.3 ln(1 - 0.99) / ln(1 - ratio^3)`: 5,984 at the lowest ratio, 0.1, which
+#: leaves about 1% of draws without an all-inlier sample by design; with 10 right
+#: matches of 100 (the cases' size) a sample of 8,192 of the C(100, 3) triplets holds
+#: none of the 120 all-inlier ones with probability e^-6.
+USAC_TRIPLETS = 8192
+
+
+def _jp_usac(obj, img, K, iterations, threshold, confidence) -> list:
+    return [
+        jp.solve_pnp_ransac(
+            obj, img, K, None, reprojection_error=threshold, max_triplets=USAC_TRIPLETS
+        )
+    ]
+
+
+def _jp_usac_params(obj, img, K):
+    threshold = cv2.UsacParams().threshold
+    return _jp_usac(obj, img, K, 5000, threshold, 0.99)[0]
+
+
 @dataclass(frozen=True)
 class Solver:
     name: str
     pnp: Callable
     ransac: Callable
     generic: Callable
+    usac: Callable
+    usac_params: Callable
 
 
-CV2 = Solver("cv2", _cv_pnp, _cv_ransac, _cv_generic)
+CV2 = Solver("cv2", _cv_pnp, _cv_ransac, _cv_generic, _cv_usac, _cv_usac_params)
 JAXPOSE = Solver(
     "jaxpose",
     lambda obj, img, K, dist, rvec=None, tvec=None, guess=False: jp.solve_pnp(
@@ -101,6 +165,8 @@ JAXPOSE = Solver(
     ),
     _jp_ransac,
     jp.solve_pnp_generic,
+    _jp_usac,
+    _jp_usac_params,
 )
 
 
@@ -403,6 +469,134 @@ def normalised(solver: Solver, rng, trials: int) -> dict:
     return {"passed": bool(ok) and _diff(r, rvec) < 1e-6 and _diff(t, tvec) < 1e-6}
 
 
+# ----------------------------------------------------------------------------- USAC
+
+
+#: The inlier ratios of `test_usac.cpp`'s accuracy loop: 0.1, 0.2, ..., 0.9.
+USAC_RATIOS = tuple(k / 10 for k in range(1, 10))
+
+
+def _euler(rng) -> np.ndarray:
+    """`test_usac.cpp`'s rotation: `Rz(yaw) Ry(pitch) Rx(roll)`, each angle uniform in
+    [-30, 30] degrees."""
+    pitch, yaw, roll = rng.uniform(-np.pi / 6, np.pi / 6, 3)
+    c, s = np.cos, np.sin
+    Rx = np.array([[1, 0, 0], [0, c(roll), -s(roll)], [0, s(roll), c(roll)]])
+    Ry = np.array([[c(pitch), 0, s(pitch)], [0, 1, 0], [-s(pitch), 0, c(pitch)]])
+    Rz = np.array([[c(yaw), -s(yaw), 0], [s(yaw), c(yaw), 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def usac_problem(rng, n: int, ratio: float, noise: float):
+    """`test_usac.cpp`'s PnP problem: `int(ratio n)` right matches first, object points
+    uniform in [0, 1]^3 seen by the rotation of `_euler` and a translation with x, y in
+    [-0.5, 0.5], z in [1, 2] (moved back along z by the nearest depth + 1 where a point
+    is behind the camera), and a camera with fx, fy in [100, 1000] px, cx = 100, cy in
+    [-100, 100]; then wrong matches, pixels uniform in [0, 1000]^2 and object points in
+    [0, 1000]^3; every pixel with Gaussian noise of deviation `noise`. Returns `(obj,
+    img, K, inliers)` (float64; `inliers` the count of right matches)."""
+    R = _euler(rng)
+    t = np.array([*rng.uniform(-0.5, 0.5, 2), rng.uniform(1, 2)])
+    K = np.array(
+        [[rng.uniform(100, 1000), 0, 100], [0, rng.uniform(100, 1000), rng.uniform(-100, 100)]]
+    )
+    K = np.vstack([K, [0, 0, 1]])
+    right = int(ratio * n)
+    obj = rng.uniform(0, 1, (right, 3))
+    nearest = (obj @ R.T + t)[:, 2].min()
+    if nearest < 0:
+        t[2] -= nearest + 1
+    cam = (obj @ R.T + t) @ K.T
+    img = cam[:, :2] / cam[:, 2:]
+    img = np.vstack([img, rng.uniform(0, 1000, (n - right, 2))])
+    obj = np.vstack([obj, rng.uniform(0, 1000, (n - right, 3))])
+    return obj, img + rng.normal(0, noise, img.shape), K, right
+
+
+def usac_inliers_hold(out, obj, img, K, threshold: float, right: int) -> bool:
+    """`test_usac.cpp`'s check of a RANSAC answer `(ok, rvec, tvec, inliers)`: `ok`,
+    every match reported as an inlier within `1.001 threshold` px of its projection by
+    the pose, and more than 80% of the right matches reported."""
+    ok, r, t, inl = out
+    if not ok or inl is None:
+        return False
+    index = np.asarray(inl, np.int64).ravel()
+    if len(index) <= 0.8 * right:
+        return False
+    error = np.linalg.norm(project(obj[index], r, t, K) - img[index], axis=1)
+    return bool(np.all(error < 1.001 * threshold))
+
+
+def _usac_iterations(ratio: float, sample: int = 3, confidence: float = 0.99) -> int:
+    """`test_usac.cpp`'s iteration budget: RANSAC's bound with a margin of 1.3."""
+    return int(1.3 * np.log(1 - confidence) / np.log(1 - ratio**sample))
+
+
+def usac_accuracy(n: int):
+    """`test_usac.cpp`'s P3P accuracy test: problems of `usac_problem` (noise 0.15 px)
+    at the inlier ratios of `USAC_RATIOS`, threshold 2 px, confidence 0.99, OpenCV's
+    iteration budget for the ratio; `cv2` with each of `USAC_FLAGS`. OpenCV runs each
+    ratio once, from its seeded generator, and asserts `usac_inliers_hold` of every
+    answer; here trial `k` is one fresh problem at ratio `USAC_RATIOS[k % 9]`, which
+    holds when every answer holds, and the case passes as OpenCV's accuracy tests do
+    (`PASS_RATE` of its trials)."""
+
+    def run(solver: Solver, rng, trials: int) -> dict:
+        good = 0
+        for k in range(trials):
+            ratio = USAC_RATIOS[k % len(USAC_RATIOS)]
+            obj, img, K, right = usac_problem(rng, n, ratio, 0.15)
+            outs = solver.usac(obj, img, K, _usac_iterations(ratio), 2.0, 0.99)
+            good += all(usac_inliers_hold(o, obj, img, K, 2.0, right) for o in outs)
+        return {"rate": good / trials, "passed": good >= PASS_RATE * trials}
+
+    return run
+
+
+def usac_params(n: int):
+    """`test_usac.cpp`'s default-parameters test, its P3P part: `cv2.UsacParams()`
+    (threshold 1.5 px, confidence 0.99, 5,000 iterations) on a problem whose inlier
+    ratio is the lowest those parameters cover, `(1 - 0.01^(1/5000))^(1/3)` (9.7%), with
+    noise 0.01 px; a trial holds when `usac_inliers_hold` does (OpenCV: one seeded
+    problem; here `PASS_RATE` of fresh ones). (Its P6P part estimates the camera matrix
+    too: not a calibrated problem, left out.)"""
+
+    def run(solver: Solver, rng, trials: int) -> dict:
+        params = cv2.UsacParams()
+        ratio = (1 - np.exp(np.log(1 - params.confidence) / params.maxIterations)) ** (1 / 3)
+        good = 0
+        for _ in range(trials):
+            obj, img, K, right = usac_problem(rng, n, ratio, 0.01)
+            out = solver.usac_params(obj, img, K)
+            good += usac_inliers_hold(out, obj, img, K, params.threshold, right)
+        return {"rate": good / trials, "passed": good >= PASS_RATE * trials}
+
+    return run
+
+
+def usac_camera_view(solver: Solver, rng, trials: int) -> dict:
+    """`test_usac.cpp`'s regression 21105: 100 matches, 10% right (noise 0.15 px),
+    threshold 2 px, `USAC_DEFAULT`; the camera matrix given as itself and as the first
+    three columns of a 3x4 matrix (a strided view): a pose both times, the same pose and
+    inliers. Every trial must hold (OpenCV asserts equality)."""
+    iterations = _usac_iterations(0.1)
+    for _ in range(max(1, trials // 4)):
+        obj, img, K, right = usac_problem(rng, 100, 0.1, 0.15)
+        view = np.hstack([K, np.zeros((3, 1))])[:, :3]
+        a = solver.usac(obj, img, K, iterations, 2.0, 0.99)[0]
+        b = solver.usac(obj, img, view, iterations, 2.0, 0.99)[0]
+        same = (
+            bool(a[0])
+            and bool(b[0])
+            and np.array_equal(a[1], b[1])
+            and np.array_equal(a[2], b[2])
+            and np.array_equal(np.ravel(a[3]), np.ravel(b[3]))
+        )
+        if not same:
+            return {"passed": False}
+    return {"passed": True}
+
+
 def cases(points: int = 100) -> dict[str, Callable]:
     """Every case, by name: `fn(solver, rng, trials) -> {"passed": bool, ...}`."""
     seed = np.random.default_rng(2024)
@@ -440,6 +634,9 @@ def cases(points: int = 100) -> dict[str, Callable]:
             p5[:3], t64, ((0.2, -0.1, 0.6), (0.05, -0.05, 1)), np.float64
         ),
         "solvePnP normalised coordinates (K = I)": normalised,
+        "USAC P3P accuracy, inlier ratios 0.1-0.9": usac_accuracy(points),
+        "USAC default parameters (UsacParams), P3P": usac_params(points),
+        "USAC camera matrix as a 3x4 view (issue 21105)": usac_camera_view,
     }
 
 
@@ -545,8 +742,10 @@ def _matches(ours, theirs, obj, img, K, dist):
     return close and abs(e - ec) <= 1e-9 * ec
 
 
-def planar_case(rng, dist=None):
-    n = int(rng.integers(4, 12))
+def planar_case(rng, dist=None, max_points: int = 11):
+    """A noisy view of 4 to `max_points` points of the plane z = 0 (the IPPE
+    comparison's problem; `tests/api/test_generic.py` keeps to 8, one bucket)."""
+    n = int(rng.integers(4, max_points + 1))
     obj = np.c_[rng.uniform(-1, 1, (n, 2)), np.zeros(n)]
     K = np.array([[rng.uniform(300, 2000), 0, 320], [0, 0, 240], [0, 0, 1]])
     K[1, 1] = K[0, 0] * rng.uniform(0.9, 1.1)
@@ -599,10 +798,11 @@ def compare_with_ippe(obj, img, K, dist=None) -> tuple[bool, int]:
     return compare_minima(obj, img, K, dist, _refined_ippe(obj, img, K, dist))
 
 
-def refined_p3p(obj, img, K, dist=None):
-    """`cv2.solvePnPGeneric(..., SOLVEPNP_P3P)`'s poses (4 matches), each refined by
-    `cv2.solvePnPRefineLM` and `local_minimum`: those that are local minima."""
-    n, rs, ts, _ = cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_P3P)
+def refined_p3p(obj, img, K, dist=None, flags: int = cv2.SOLVEPNP_P3P):
+    """`cv2.solvePnPGeneric(..., flags)`'s poses (by default P3P's, 4 matches), each
+    refined by `cv2.solvePnPRefineLM` and `local_minimum`: those that are local minima,
+    distinct."""
+    n, rs, ts, _ = cv2.solvePnPGeneric(obj, img, K, dist, flags=flags)
     out = []
     for r, t in zip(rs, ts, strict=True):
         r, t = cv2.solvePnPRefineLM(obj, img, K, dist, r.copy(), t.copy())

@@ -19,6 +19,7 @@ from ._covariance import pose_covariance as pose_covariance
 from ._methods import SINGLE_METHODS as SINGLE_METHODS
 from ._methods import per_triplet as per_triplet
 from ._methods import run_method as run_method
+from ._minima import MINIMA_ROOTS as MINIMA_ROOTS
 from ._minima import SAME_MINIMUM as SAME_MINIMUM
 from ._minima import Minima as Minima
 from ._minima import local_minima as local_minima
