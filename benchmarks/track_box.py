@@ -6,9 +6,13 @@ same textured model (`cookies_ORB.yml.gz`, the tutorial's ORB keypoints of the b
 Methods, each run on every frame:
 
 - `jaxpose`: `jaxpose.apps.track` (moving edges and KLT points, the paper's
-  small-movement linear method) from the pose `jaxpose.apps.locate_textured` finds in
-  the first frame, with `recognition_reinit` (keypoints first) after a lost frame, as
-  `jaxpose track --textured` runs it;
+  small-movement linear method, compiled) from the pose `jaxpose.apps.locate_textured`
+  finds in the first frame, with `recognition_reinit` (keypoints first) after a lost
+  frame, as `jaxpose track --textured` runs it;
+- `jaxpose_refined`: the same trajectory refined offline, all frames jointly
+  (`jaxpose.apps.refine_track`: each frame's stored measurements plus a
+  constant-velocity prior, default settings); its rate counts the tracking and the
+  refinement;
 - `opencv_pnp`: the tutorial's detection per frame, written here with OpenCV's calls:
   ORB keypoints (2,000) of the frame, FLANN's LSH index (6 tables, key size 12, multi-
   probe level 1) matched two-nearest to the model's descriptors, Lowe's ratio test
@@ -26,6 +30,10 @@ Figures per method, over the frames it gives a pose on:
   and the movement of the model's centre (mm; the mesh is in cm), median and 95th
   percentile (the box is moved by hand, so this is motion plus noise: the same motion
   for every method);
+- `jitter_2nd`: over three consecutive frames with a pose, the change of that
+  frame-to-frame motion (the second difference: the rotation vectors' and the centre's),
+  median and 95th percentile: a smooth hand motion changes little from one frame to
+  the next at 30 frames/s, noise does;
 - `edge_distance_px`: per frame, the mean distance from the projected visible model
   edges (sampled every 2 px, hidden parts removed) to the nearest image edge (Canny,
   thresholds 40/120 after a 5 x 5 Gaussian blur, sigma 1.2; the distance transform read
@@ -158,28 +166,33 @@ def run_opencv(frames, textured, K, dist) -> tuple[list, list, float]:
     return measured, filtered, time.perf_counter() - began
 
 
-def run_jaxpose(frames, geo, textured, K, dist) -> tuple[list, float, dict]:
+def run_jaxpose(frames, geo, textured, K, dist) -> tuple[list, float, dict, list, float]:
     """`jaxpose.apps.track` from the keypoint path's first pose; per frame the pose (or
-    None where lost), the seconds the tracker spent, and the start's details."""
+    None where lost), the seconds the tracker spent, the start's details, and the same
+    after `refine_track` with the seconds it took."""
     import cv2
 
-    from jaxpose.apps import locate_textured, recognition_reinit, track
+    from jaxpose.apps import locate_textured, recognition_reinit, refine_track, track
 
     began = time.perf_counter()
     first = locate_textured(frames[0], textured, K, dist, features=3000)
     start_s = time.perf_counter() - began
     start = (cv2.Rodrigues(first.rvec)[0], first.tvec.reshape(3))
     reinit = recognition_reinit(geo, K, dist, textured=textured)
-    poses, statuses = [], []
     began = time.perf_counter()
-    for r in track(frames, geo, K, dist, start, reinit=reinit):
-        poses.append((r.R, r.t) if r.ok else None)
-        statuses.append(r.status)
+    results = list(track(frames, geo, K, dist, start, reinit=reinit))
     elapsed = time.perf_counter() - began
+    poses = [(r.R, r.t) if r.ok else None for r in results]
+    statuses = [r.status for r in results]
     counts = {s: statuses.count(s) for s in dict.fromkeys(statuses)}
     info = {"start_rvec": first.rvec.ravel().tolist(), "start_tvec": first.tvec.ravel().tolist(),
             "start_s": start_s, "statuses": counts}  # fmt: skip
-    return poses, elapsed, info
+    began = time.perf_counter()
+    refined = refine_track(results)
+    refine_s = time.perf_counter() - began
+    info["refine_cost"] = [refined.cost_before, refined.cost_after]
+    smooth = [(r.R, r.t) if r.ok else None for r in refined.frames]
+    return poses, elapsed, info, smooth, refine_s
 
 
 def _distance_maps(frames) -> list[np.ndarray]:
@@ -220,6 +233,14 @@ def _figures(poses, centre, dmaps, geo, K, dist, seconds) -> dict:
             continue
         rot.append(np.degrees(np.linalg.norm(cv2.Rodrigues(b[0] @ a[0].T)[0])))
         move.append(10.0 * np.linalg.norm((b[0] @ centre + b[1]) - (a[0] @ centre + a[1])))
+    rot2, move2 = [], []  # second differences over three frames with a pose
+    for a, b, c in zip(poses, poses[1:], poses[2:], strict=False):
+        if a is None or b is None or c is None:
+            continue
+        turn = [cv2.Rodrigues(y[0] @ x[0].T)[0].ravel() for x, y in ((a, b), (b, c))]
+        rot2.append(np.degrees(np.linalg.norm(turn[1] - turn[0])))
+        pa, pb, pc = (p[0] @ centre + p[1] for p in (a, b, c))
+        move2.append(10.0 * np.linalg.norm(pc - 2 * pb + pa))
     per_frame = [
         _edge_distance(m, geo, K, dist, *p) if p else None
         for m, p in zip(dmaps, poses, strict=True)
@@ -238,6 +259,8 @@ def _figures(poses, centre, dmaps, geo, K, dist, seconds) -> dict:
         "frames_with_pose": int(sum(p is not None for p in poses)),
         "jitter_rotation_deg": stats(rot),
         "jitter_translation_mm": stats(move),
+        "jitter_2nd_rotation_deg": stats(rot2),
+        "jitter_2nd_translation_mm": stats(move2),
         "edge_distance_px": edges if distances else None,
         "seconds": seconds,
         "fps": len(poses) / seconds,
@@ -268,14 +291,18 @@ def run(frames: int = 455, repeats: int = 3) -> dict:
     for _ in range(repeats):
         cv_runs.append(run_opencv(grey, textured, K, dist))
         jp_runs.append(run_jaxpose(grey, geo, textured, K, dist))
-    (measured, filtered, _), (poses, _, info) = cv_runs[0], jp_runs[0]
+    (measured, filtered, _), (poses, _, info, smooth, _) = cv_runs[0], jp_runs[0]
     cv_s, jp_s = min(r[2] for r in cv_runs), min(r[1] for r in jp_runs)
+    both_s = min(r[1] + r[4] for r in jp_runs)
     methods = {
         "jaxpose": _figures(poses, centre, dmaps, geo, K, dist, jp_s) | info,
+        "jaxpose_refined": _figures(smooth, centre, dmaps, geo, K, dist, both_s),
         "opencv_pnp": _figures(measured, centre, dmaps, geo, K, dist, cv_s),
         "opencv_kalman": _figures(filtered, centre, dmaps, geo, K, dist, cv_s),
     }
     methods["jaxpose"]["seconds_each_run"] = [r[1] for r in jp_runs]
+    methods["jaxpose_refined"]["refine_seconds_each_run"] = [r[4] for r in jp_runs]
+    methods["jaxpose_refined"]["refine_cost"] = info["refine_cost"]
     for key in ("opencv_pnp", "opencv_kalman"):
         methods[key]["seconds_each_run"] = [r[2] for r in cv_runs]
     return {
@@ -305,9 +332,12 @@ def main(argv=None) -> None:
     result = run(args.frames, args.repeats)
     for name, m in result["methods"].items():
         jr, jt, ed = m["jitter_rotation_deg"], m["jitter_translation_mm"], m["edge_distance_px"]
-        print(f"{name:>14}: {m['frames_with_pose']}/{result['frames']} posed, jitter "
-              f"{jr['median']:.3f}/{jr['p95']:.3f} deg, {jt['median']:.2f}/{jt['p95']:.2f} mm "
-              f"(median/p95), edges {ed['mean']:.2f} px mean ({ed['median']:.2f} median), "
+        j2, m2 = m["jitter_2nd_rotation_deg"], m["jitter_2nd_translation_mm"]
+        print(f"{name:>15}: {m['frames_with_pose']}/{result['frames']} posed, jitter "
+              f"{jr['median']:.3f}/{jr['p95']:.3f} deg, {jt['median']:.2f}/{jt['p95']:.2f} mm, "
+              f"2nd difference {j2['median']:.3f}/{j2['p95']:.3f} deg, "
+              f"{m2['median']:.2f}/{m2['p95']:.2f} mm (median/p95), edges "
+              f"{ed['mean']:.2f} px mean ({ed['median']:.2f} median), "
               f"{m['fps']:.1f} frames/s")  # fmt: skip
     print("written", write_json(Path(args.out), result))
 
