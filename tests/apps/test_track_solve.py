@@ -173,3 +173,13 @@ def test_plane_rows_are_the_derivative_of_the_residuals():
                          centre)  # fmt: skip
     np.testing.assert_allclose(J, jax.jacfwd(residual)(jnp.zeros(6)), atol=1e-9)
     assert np.all(np.asarray(r)[~rows.mask] == 0)
+
+
+def test_frames_of_one_bucket_share_one_program():
+    from jaxpose.apps._track_solve import _PROGRAM
+
+    made = _PROGRAM.compiled + _PROGRAM.loaded
+    for seed, n_edges, n_points in [(11, 150, 60), (12, 100, 120), (13, 250, 0)]:  # 129-256
+        meas, R, t = _problem(seed, n_edges, n_points)
+        assert solve_frame(R, t, K, meas, iterations=2, min_rows=12, min_scale=0.3).ok
+    assert _PROGRAM.compiled + _PROGRAM.loaded - made <= 1
