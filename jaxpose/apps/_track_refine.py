@@ -257,6 +257,9 @@ def refine_track(
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be an int >= 1, got {iterations!r}")
     used = [f.ok and f.rows is not None and len(f.rows.point) > 0 for f in frames]
+    for f, u in zip(frames, used):
+        if u and not all(np.all(np.isfinite(np.asarray(a, np.float64))) for a in (f.R, f.t)):
+            raise ValueError(f"frames: frame {f.frame} has a pose that is not finite")
     if centre is not None:
         centre = np.asarray(centre, np.float64)
         if centre.shape != (3,) or not np.all(np.isfinite(centre)):

@@ -78,3 +78,17 @@ def test_bad_arguments(tracked):
         refine_track(results, iterations=0)
     with pytest.raises(ValueError, match="centre"):
         refine_track(results, centre=[0.0, np.inf, 0.0])
+
+
+def test_a_frame_without_weight_gives_no_nan(tracked):
+    results = list(tracked[0][:12])
+    rows = results[5].rows
+    results[5] = results[5]._replace(rows=rows._replace(weights=np.zeros_like(rows.weights)))
+    out = refine_track(results)
+    for f in out.frames:
+        assert np.all(np.isfinite(f.R)) and np.all(np.isfinite(f.t)) and np.isfinite(f.rms)
+    assert np.isfinite(out.cost_before) and np.isfinite(out.cost_after)
+    bad = list(results)
+    bad[3] = bad[3]._replace(t=np.array([0.0, np.nan, 80.0]))
+    with pytest.raises(ValueError, match="frames"):
+        refine_track(bad)
