@@ -141,14 +141,15 @@ def minima(
         R, t = solution.pose
         local = _minima_jitted(values, camera, model, image, mask, R, t, options=key)
     else:
-        local = _stored_minima(camera, model, image, mask, solution.pose, options)
+        R, t = solution.pose
+        local = _stored_minima(camera, model, image, mask, R, t, options)
     return rank_minima(solution, local)
 
 
-def _stored_minima(camera, model, image, mask, answer: Pose, options: Options) -> Minima:
-    """`local_minima` on concrete inputs through its stored program: the points padded to
-    their bucket (`bucket_points`, the padding repeating the first match, masked out),
-    values only (`derivative=False`)."""
+def _stored_minima(camera, model, image, mask, R, t, options: Options) -> Minima:
+    """`local_minima` of the problem whose answer is `Pose(R, t)`, on concrete inputs
+    through its stored program: the points padded to their bucket (`bucket_points`, the
+    padding repeating the first match, masked out), values only (`derivative=False`)."""
     camera, model, image = (np.asarray(x) for x in (camera, model, image))
     dtype = jnp.result_type(float, camera.dtype, model.dtype, image.dtype)
     dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
@@ -164,7 +165,7 @@ def _stored_minima(camera, model, image, mask, answer: Pose, options: Options) -
 
     model, image, mask = (points(x) for x in (model, image, mask))
     key, values = split_values(dataclasses.replace(options, derivative=False))
-    args = (values, camera, model, image, mask, *answer)
+    args = (values, camera, model, image, mask, R, t)
     args = tuple(np.asarray(a, dtype) if a is not mask else a for a in args)
     return program(_minima_program, key)(*args)
 
@@ -227,9 +228,10 @@ def solve_pnp_generic(
     poses = [(out[1:4].reshape(3, 1).copy(), out[4:7].reshape(3, 1).copy())]
     if options.method != "three_point":
         camera = np.concatenate([K, np.zeros((3, 1))], axis=1)
-        answer = Pose(cv2.Rodrigues(out[1:4])[0], out[4:7])
+        R = np.asarray(cv2.Rodrigues(out[1:4])[0])
         with jax.enable_x64(True):
-            local = _stored_minima(camera, problem.obj, problem.img, problem.mask, answer, options)
+            p = problem
+            local = _stored_minima(camera, p.obj, p.img, p.mask, R, out[4:7], options)
             R, t, found = (np.asarray(x, np.float64) for x in (*local.pose, local.found))
         for Ri, ti in zip(R[found > 0.5], t[found > 0.5], strict=True):
             row = np.concatenate([cv2.Rodrigues(Ri)[0].ravel(), ti])
