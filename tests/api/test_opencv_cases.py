@@ -1,8 +1,9 @@
 """OpenCV's own test cases for `solvePnP`, `solvePnPRansac` and `solvePnPGeneric`
-(`benchmarks/opencv_cases.py`: their facts and thresholds in this project's code), each
-run on `cv2` and on jaxpose's drop-ins with the same inputs: jaxpose passes every case
-that `cv2` passes. The accuracy cases run 12 trials here (OpenCV's 1000; the benchmark
-script 100), on fresh random draws per case."""
+(`benchmarks/opencv_cases.py`: the facts and thresholds of `test_solvepnp_ransac.cpp` and
+of `test_usac.cpp`'s PnP cases in this project's code), each run on `cv2` and on
+jaxpose's drop-ins with the same inputs: jaxpose passes every case that `cv2` passes.
+The accuracy cases run 12 trials here (OpenCV's 1000; the benchmark script 100), on
+fresh random draws per case."""
 
 import numpy as np
 import pytest
