@@ -138,11 +138,25 @@ def test_generic_conventions_and_a_3d_model():
 
 
 def _planar_problem():
-    """A planar problem with two local minima (6 matches), in the JAX API's terms."""
+    """A planar problem with two local minima (6 matches), in the JAX API's terms, and
+    its `Solution`: `solve_pnp`'s answer, its pose and Eq. 8 error as `solve` gives
+    them (`solve` runs the same pipeline; this keeps to the programs the suite builds
+    for `solve_pnp` instead of compiling `solve`'s own)."""
     rng = np.random.default_rng(30)
     obj, img, K = planar_case(rng, max_points=8)
     obj, img = obj[:6], img[:6]
-    return np.c_[K, np.zeros(3)], obj, img, K
+    ok, rvec, tvec = jp.solve_pnp(obj, img, K, None)
+    proj = cv2.projectPoints(obj, rvec, tvec, K, None)[0].reshape(-1, 2)
+    error = np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1)))  # Eq. 8
+    sol = jp.Solution(
+        pose=jp.Pose(cv2.Rodrigues(rvec)[0], tvec.ravel()),
+        error=np.float64(error),
+        pose_error=np.float64(0),
+        status=np.int32(jp.Status.OK),
+        accepted=np.bool_(ok),
+        triplet=np.arange(3, dtype=np.int32),
+    )
+    return sol, np.c_[K, np.zeros(3)], obj, img, K
 
 
 def test_minima_are_solve_pnp_generics_sorted_in_fixed_shapes():
@@ -150,8 +164,7 @@ def test_minima_are_solve_pnp_generics_sorted_in_fixed_shapes():
     minima first by increasing Eq. 8 error (the answer among them), the same poses as
     `solve_pnp_generic` with its errors times sqrt(2) (OpenCV's RMSE is Eq. 8 over
     sqrt(2)), then placeholders: the identity pose, error 0, never a NaN."""
-    C, obj, img, K = _planar_problem()
-    sol = jp.solve(C, obj, img)
+    sol, C, obj, img, K = _planar_problem()
     m = jp.minima(sol, C, obj, img)
     S = 4 + jp.strategy.MINIMA_ROOTS
     assert m.pose.R.shape == (S, 3, 3) and m.pose.t.shape == (S, 3)
@@ -167,8 +180,9 @@ def test_minima_are_solve_pnp_generics_sorted_in_fixed_shapes():
         np.asarray(m.pose.R)[k:], np.broadcast_to(np.eye(3), (S - k, 3, 3))
     )
     assert np.all(np.asarray(m.pose.t)[k:] == 0)
-    # the answer is among them
-    assert any(np.allclose(m.pose.R[i], sol.pose.R, atol=1e-9) for i in range(k))
+    # the answer is among them, with its error
+    i = next(i for i in range(k) if np.allclose(m.pose.R[i], sol.pose.R, atol=1e-12))
+    assert np.allclose(m.pose.t[i], sol.pose.t, atol=1e-12) and m.error[i] == sol.error
     count, rvecs, tvecs, errs = jp.solve_pnp_generic(obj, img, K, None)
     assert count == k
     for i in range(k):
@@ -180,8 +194,7 @@ def test_minima_are_solve_pnp_generics_sorted_in_fixed_shapes():
 def test_minima_without_a_pose_and_with_the_three_point_method():
     """No accepted pose: no minimum (every slot a placeholder); the three-point method:
     the answer alone, in one slot; arguments checked, `ValueError` naming them."""
-    C, obj, img, _ = _planar_problem()
-    good = jp.solve(C, obj, img)
+    good, C, obj, img, _ = _planar_problem()
     refused = good._replace(accepted=np.bool_(False))  # (as solve's answer where none is)
     m = jp.minima(refused, C, obj, img)
     assert not np.asarray(m.found).any() and np.all(np.asarray(m.error) == 0)
@@ -203,8 +216,7 @@ def test_minima_without_a_pose_and_with_the_three_point_method():
 def test_minima_traces_under_jit_and_vmap():
     """`jaxpose.minima` composes with `jit` and `vmap` (traced only: `jax.eval_shape`,
     no program compiled): a batch of `B` gives `(B, S)` fields."""
-    C, obj, img, _ = _planar_problem()
-    sol = jp.solve(C, obj, img)
+    sol, C, obj, img, _ = _planar_problem()
     B = 3
     sols = jax.tree.map(lambda a: np.stack([np.asarray(a)] * B), sol)
     objs, imgs = np.stack([obj] * B), np.stack([img] * B)
