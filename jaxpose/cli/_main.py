@@ -181,8 +181,10 @@ def build_parser() -> argparse.ArgumentParser:
         '--init-pose ({"rvec": [..], "tvec": [..]}, OpenCV\'s conventions) or recognised. '
         '--json writes {"frames": [{"index", "ok", "status", "rvec", "tvec", "error_px", '
         '"inliers", "ms"}, ...]} (rvec and tvec null where lost), --csv the same columns. '
-        "A progress bar goes to stderr. Exit code 0 when every frame has a pose, 1 when "
-        "some frame is lost, 2 on bad input.",
+        "A progress bar goes to stderr. --smooth refines the trajectory jointly after the "
+        "pass. `jaxpose warmup --track` builds the tracker's compiled programs ahead of "
+        "time. Exit code 0 when every frame has a pose, 1 when some frame is lost, 2 on "
+        "bad input.",
     )
     tr.add_argument("input", help="a video file, a folder of images (sorted by name), or a "
                     "camera index (0, 1, ...)")  # fmt: skip
@@ -205,6 +207,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "frame, recognise on one frame in K at most (default 1)")  # fmt: skip
     tr.add_argument("--reinit-wait", type=float, metavar="SECONDS", help="and only SECONDS "
                     "after the last try ended (default 1 for a camera, else 0)")  # fmt: skip
+    tr.add_argument("--smooth", action="store_true", help="after the pass, refine the whole "
+                    "trajectory jointly (every frame's measurements plus a constant-velocity "
+                    "prior: jaxpose.apps.refine_track) and write the refined poses to --json "
+                    "and --csv; prints the jitter before and after (--overlay and --rrd show "
+                    "the tracked poses)")  # fmt: skip
+    tr.add_argument("--smooth-rotation", type=float, default=0.05, metavar="DEG",
+                    help="--smooth's prior: the change of the frame-to-frame rotation "
+                    "expected per frame, degrees (default 0.05; larger smooths less)")  # fmt: skip
+    tr.add_argument("--smooth-translation", type=float, default=2e-4, metavar="F",
+                    help="--smooth's prior: the change of the frame-to-frame movement of the "
+                    "object's centre expected per frame, as a fraction of its distance "
+                    "(default 0.0002)")  # fmt: skip
     add_recording_options(tr)
     tr.set_defaults(func=cmd_track)
     w = sub.add_parser(

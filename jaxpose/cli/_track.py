@@ -11,6 +11,19 @@ input frame; `rvec` and `tvec` null on a lost frame), `--csv` (the same columns)
 `--rrd` (the rerun recording: `jaxpose.viz._tracking`) and `--overlay` (an mp4 of the
 frames with the model's visible edges drawn at each pose). A progress bar goes to
 stderr.
+
+`--smooth`: after the pass, the whole trajectory is refined jointly
+(`jaxpose.apps.refine_track`: every frame's stored measurements, the planes of the
+paper's small-movement method (Section 2.2, Eqs. 5-7) with their robust weights, plus a
+constant-velocity prior) and the refined poses are what `--json` and `--csv` hold
+(`error_px` then the frame's RMS residual at its refined pose); the jitter before and
+after is printed. `--overlay` and `--rrd` are written during the pass: they show the
+tracked poses.
+
+The command computes in float64 (as `jaxpose recognize` and the benchmarks do), so that
+its compiled programs are those `jaxpose warmup --track` builds; the console (rich) is
+set up only after the pass, so that nothing but the tracker stands before the first
+frame.
 """
 
 from __future__ import annotations
@@ -33,7 +46,7 @@ from ._recording import (
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
 
-__all__ = ["cmd_track", "read_init_pose"]
+__all__ = ["cmd_track", "jitter", "read_init_pose"]
 
 #: The columns of `--csv` (the keys of each `--json` frame; rvec and tvec as 3 each).
 CSV_COLUMNS = ("index", "ok", "status", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y",
@@ -94,6 +107,10 @@ def _check_args(args) -> None:
         raise CliError(f"--reinit-every must be >= 1, got {args.reinit_every}")
     if args.reinit_wait is not None and not 0 <= args.reinit_wait < math.inf:
         raise CliError(f"--reinit-wait must be a finite number >= 0, got {args.reinit_wait}")
+    for option, value in (("--smooth-rotation", args.smooth_rotation),
+                          ("--smooth-translation", args.smooth_translation)):  # fmt: skip
+        if not 0 < value < math.inf:
+            raise CliError(f"{option} must be a finite number > 0, got {value}")
     if args.no_reinit and args.init_pose is None:
         raise CliError("--no-reinit needs --init-pose (the first frame is recognised otherwise)")
     check_recording_args(args)
@@ -175,7 +192,7 @@ def _write_csv(path: str, rows: list[dict[str, Any]], console) -> None:
 
 
 def _reinit(args, mesh, K, dist):
-    """The re-initialisation: recognition (the JAX programs set up on first use)."""
+    """The re-initialisation: recognition (its compiled programs loaded on first use)."""
     from ..apps._reinit import recognition_reinit
     from ..features._keypoints import read_textured_model
 
@@ -185,17 +202,67 @@ def _reinit(args, mesh, K, dist):
             textured = read_textured_model(args.textured)
         except ValueError as exc:
             raise CliError(f"--textured {args.textured}: {exc}") from None
-    recognise = recognition_reinit(mesh, K, dist, textured=textured)
-    ready = False
+    return recognition_reinit(mesh, K, dist, textured=textured)
 
-    def reinit(frame, index):
-        nonlocal ready
-        if not ready:
-            setup_jax(True)
-            ready = True
-        return recognise(frame, index)
 
-    return reinit
+def jitter(poses, centre) -> dict[str, float]:
+    """The frame-to-frame jitter of a trajectory: between consecutive frames with a pose
+    (`None` where lost), the median rotation (degrees) and movement of the model point
+    `centre` (model units); over three consecutive frames with a pose, the median of
+    the second differences of the rotation vectors (degrees) and of `centre`'s path.
+    NaN where there are too few frames (printed as such, never written)."""
+    import cv2
+    import numpy as np
+
+    rot, move, rot2, move2 = [], [], [], []
+    steps: list = [None]  # the motion into each frame from the previous one
+    for a, b in zip(poses, poses[1:]):
+        if a is None or b is None:
+            steps.append(None)
+            continue
+        w = cv2.Rodrigues(b[0] @ a[0].T)[0].ravel()
+        p = (b[0] @ centre + b[1]) - (a[0] @ centre + a[1])
+        rot.append(np.degrees(np.linalg.norm(w)))
+        move.append(float(np.linalg.norm(p)))
+        steps.append((w, p))
+    for s, u in zip(steps, steps[1:]):
+        if s is not None and u is not None:
+            rot2.append(np.degrees(np.linalg.norm(u[0] - s[0])))
+            move2.append(float(np.linalg.norm(u[1] - s[1])))
+
+    def median(v):
+        return float(np.median(v)) if v else math.nan
+
+    return {"rotation_deg": median(rot), "translation": median(move),
+            "rotation_2nd_deg": median(rot2), "translation_2nd": median(move2)}  # fmt: skip
+
+
+def _smooth(results, centre, rotation_sigma: float, translation_sigma: float):
+    """`refine_track` on the pass's results with the prior's sigmas: the refined frames,
+    a line saying the jitter before and after, and the seconds it took."""
+    from ..apps._track_refine import refine_track
+
+    began = time.perf_counter()
+    try:
+        refined = refine_track(
+            results, rotation_sigma=rotation_sigma, translation_sigma=translation_sigma
+        )
+    except ValueError as exc:  # (not expected: the tracker's own frames)
+        raise CliError(f"--smooth: {exc}") from None
+    seconds = time.perf_counter() - began
+
+    def poses(frames):
+        return [(f.R, f.t) if f.ok else None for f in frames]
+
+    a, b = jitter(poses(results), centre), jitter(poses(refined.frames), centre)
+    line = (
+        f"smoothed (refine_track, {refined.iterations} steps, {seconds:.1f} s): jitter "
+        f"{a['rotation_deg']:.3f} -> {b['rotation_deg']:.3f} deg, {a['translation']:.3f} -> "
+        f"{b['translation']:.3f} (model units) frame to frame; second difference "
+        f"{a['rotation_2nd_deg']:.3f} -> {b['rotation_2nd_deg']:.3f} deg, "
+        f"{a['translation_2nd']:.3f} -> {b['translation_2nd']:.3f} (medians)"
+    )
+    return refined.frames, line, seconds
 
 
 def cmd_track(args) -> int:
@@ -210,8 +277,8 @@ def cmd_track(args) -> int:
     from ..apps._visibility import mesh_geometry
     from ..features._video import open_frames
 
-    console = new_console()
     _check_args(args)
+    setup_jax(True)
     K, dist = camera_option(args.camera)
     dist = None if not np.any(dist) else dist
     try:
@@ -253,14 +320,18 @@ def cmd_track(args) -> int:
         from ..viz._tracking import track_blueprint
 
         rec = open_recording(args, f"jaxpose track {args.input}", track_blueprint())
+    results = []  # the frames' results, kept for --smooth
     rows: list[dict[str, Any]] = []
     trajectory: list[np.ndarray] = []
     progress = _Progress(total)
     lost = 0
+    interrupted = False
     try:
         for r in track(feed(), geo, K, dist, initial, options=options, reinit=reinit):
             frame = current["frame"]
             rows.append(_row(r))
+            if args.smooth:
+                results.append(r)
             lost += not r.ok
             if args.overlay is not None:
                 from ..viz._tracking import draw_tracked
@@ -279,12 +350,15 @@ def cmd_track(args) -> int:
     except ValueError as exc:
         raise CliError(f"INPUT {args.input}: {str(exc).removeprefix('source: ')}") from None
     except KeyboardInterrupt:  # Ctrl-C (a live camera): the frames so far are written
-        console.print(f"interrupted after {len(rows)} frames")
+        interrupted = True
     finally:
         progress.close()
         if writer is not None:
             writer.release()
         frames.close()
+    console = new_console()
+    if interrupted:
+        console.print(f"interrupted after {len(rows)} frames")
     if not rows:
         raise CliError(f"INPUT {args.input}: no frame could be read")
     counts = {s: sum(row["status"] == s for row in rows)
@@ -296,6 +370,11 @@ def cmd_track(args) -> int:
                     f"{1e3 / max(float(np.mean(tracked)), 1e-9):.0f} frames/s (decoding "
                     "excluded)")  # fmt: skip
     console.print(summary)
+    if args.smooth:
+        centre = np.asarray(mesh.vertices, np.float64).mean(axis=0)
+        refined, line, _ = _smooth(results, centre, args.smooth_rotation, args.smooth_translation)
+        rows = [_row(r) for r in refined]
+        console.print(line)
     if args.json:
         _write_json(args.json, rows, console)
     if args.csv:

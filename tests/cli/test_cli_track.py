@@ -263,3 +263,57 @@ def test_interrupted_run_writes_what_it_tracked(sequence, capsys, monkeypatch):
     assert rc == 0 and "interrupted after 3 frames" in stdout
     assert [f["status"] for f in json.loads(out.read_text())["frames"]] == [
         "initialised", "tracked", "tracked"]  # fmt: skip
+
+
+def test_smooth_writes_the_refined_trajectory(sequence, capsys):
+    # --smooth on the first six frames (no occlusion): the poses written are refine_track's
+    # and the jitter before and after is printed. The rendered box turns about 3 degrees
+    # a frame with a second difference of about 2.7 deg/frame^2, far from the default
+    # prior's constant velocity (0.05): with a prior that allows it, the refined poses
+    # stay on the true ones.
+    argv = ["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
+            str(sequence["camera"]), "--init-pose", str(sequence["pose"]), "--no-reinit",
+            "--frames", "6"]  # fmt: skip
+    plain, smooth = sequence["tmp"] / "plain.json", sequence["tmp"] / "smooth.json"
+    table = sequence["tmp"] / "smooth.csv"
+    assert main([*argv, "--json", str(plain)]) == 0
+    assert "smoothed" not in capsys.readouterr().out
+    assert main([*argv, "--smooth", "--smooth-rotation", "3", "--smooth-translation", "0.02",
+                 "--json", str(smooth), "--csv", str(table)]) == 0  # fmt: skip
+    stdout = capsys.readouterr().out.replace("\n", " ")
+    assert "smoothed (refine_track" in stdout and "jitter" in stdout and "->" in stdout
+    before = json.loads(plain.read_text())["frames"]
+    after = json.loads(smooth.read_text())["frames"]
+    assert [f["status"] for f in after] == [f["status"] for f in before]
+    assert len(after) == 6 and all(f["ok"] for f in after)
+    moved = [np.abs(np.subtract(a["tvec"], b["tvec"])).max() for a, b in zip(after, before)]
+    assert max(moved) > 0  # the refined poses, not the tracked ones
+    for i, f in enumerate(after):
+        rotation, translation = _errors(f, sequence["Rs"][i], sequence["ts"][i])
+        assert rotation <= 0.5 and translation <= 0.005, (i, rotation, translation)
+        assert np.isfinite(f["error_px"]) and f["error_px"] >= 0
+    with table.open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [float(r["tvec_z"]) for r in rows] == pytest.approx([f["tvec"][2] for f in after])
+    # A prior that must be positive: one line naming it.
+    for option in ("--smooth-rotation", "--smooth-translation"):
+        assert main([*argv, "--smooth", option, "0"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and option in err[0]
+
+
+def test_jitter_of_a_trajectory():
+    # A constant motion: a steady frame-to-frame turn and step, no second difference;
+    # a lost frame breaks both chains.
+    turn = cv2.Rodrigues(np.array([0.0, 0.0, np.radians(1.0)]))[0]
+    poses, R, t = [], np.eye(3), np.array([0.0, 0.0, 50.0])
+    for _ in range(6):
+        poses.append((R, t))
+        R, t = turn @ R, t + [0.5, 0.0, 0.0]
+    found = cli_track.jitter(poses, np.zeros(3))
+    assert found["rotation_deg"] == pytest.approx(1.0)
+    assert found["translation"] == pytest.approx(0.5)
+    assert found["rotation_2nd_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert found["translation_2nd"] == pytest.approx(0.0, abs=1e-9)
+    few = cli_track.jitter([poses[0], None, poses[2]], np.zeros(3))
+    assert all(np.isnan(v) for v in few.values())
