@@ -42,24 +42,45 @@ def _problems(kind: str, n: int, B: int, noise: float, seed: int):
     return C, M, I
 
 
+# Every `solve_many` of this file runs on one shape, `SHAPE` = (problems, matches): fewer
+# matches are padded (repeating the first, masked out), so that each program (the whole
+# mixed algorithm above all, `_many(None)`) is compiled once for the file, not per shape.
+SHAPE = (12, 13)
+
+
+def _padded(C, M, I):
+    """`(C, M, I, mask)` of `SHAPE`: `B = SHAPE[0]` problems of up to `SHAPE[1]` matches,
+    the missing matches repeating the first, masked out."""
+    B, n = M.shape[:2]
+    assert (B, n) <= SHAPE and B == SHAPE[0], (B, n)
+    pad = SHAPE[1] - n
+    M, I = (np.concatenate([x, np.repeat(x[:, :1], pad, axis=1)], axis=1) for x in (M, I))
+    mask = np.broadcast_to(np.arange(SHAPE[1]) < n, (B, SHAPE[1]))
+    return C, M, I, mask
+
+
 @functools.cache
 def _many(refine, wider_spread=12):
     """`solve_many` with this `refine` and `wider_spread`, values only
     (`derivative=False`: the answers are compared, not their derivatives; a smaller
-    program to compile)."""
-    return jax.jit(
-        lambda C, M, I: jp.solve_many(
-            C, M, I, refine=refine, wider_spread=wider_spread, derivative=False
+    program to compile), on problems of `SHAPE` (`_padded`)."""
+
+    def run(C, M, I, mask):
+        assert M.shape[:2] == SHAPE, M.shape
+        return jp.solve_many(
+            C, M, I, mask, refine=refine, wider_spread=wider_spread, derivative=False
         )
-    )
+
+    return jax.jit(run)
 
 
 def test_best_roots_reach_the_answer_of_every_triplet():
     """Same pose and error as the whole mixed algorithm, problem by problem (ordinary and
-    planar scenes in one batch)."""
+    planar scenes of 7 matches in one batch, padded to `SHAPE`)."""
     parts = [_problems(kind, 7, 6, noise=1.0, seed=3) for kind in ("ordinary", "planar")]
     C, M, I = (np.concatenate(x) for x in zip(*parts, strict=True))
-    quick, full = _many(4)(C, M, I), _many(None)(C, M, I)
+    args = _padded(C, M, I)
+    quick, full = _many(4)(*args), _many(None)(*args)
     assert np.all(np.asarray(quick.accepted) == np.asarray(full.accepted))
     np.testing.assert_allclose(quick.error, full.error, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(quick.pose.R, full.pose.R, atol=1e-7)
@@ -122,9 +143,11 @@ def test_wider_rung_settles_what_the_spread_roots_leave():
     opts = jp.Options(spread_points=12, refine=8, refine_with="mixed", fallback=False)
     assert escalation(jp.Options())[1] == dataclasses.replace(opts, derivative=True)
     assert list(rung_applies(opts, np.array([7, 12, 13, 16]))) == [False, False, True, True]
-    C, M, I = _collinear_spread(12, seed=4, inner=6)
-    wider = jax.jit(lambda C, M, I: jp.solve_many(C, M, I, options=opts, derivative=False))
-    wider, full = wider(C, M, I), _many(None)(C, M, I)
+    args = _padded(*_collinear_spread(12, seed=4, inner=6))  # 13 matches: no padding
+    wider = jax.jit(
+        lambda C, M, I, mask: jp.solve_many(C, M, I, mask, options=opts, derivative=False)
+    )
+    wider, full = wider(*args), _many(None)(*args)
     assert np.all(np.asarray(wider.accepted)) and np.all(np.asarray(full.accepted))
     assert np.all(np.max(np.asarray(wider.triplet), axis=1) >= 4)
     assert np.all(np.asarray(_is_success(wider.status)))
@@ -135,14 +158,21 @@ def test_wider_rung_settles_what_the_spread_roots_leave():
 
 def test_fallback_runs_the_whole_mixed_algorithm():
     """Where the best roots give nothing (the spread matches are collinear: every one of
-    their triplets is degenerate) and no wider rung is asked for, every problem falls
-    back, in passes of `fallback_slots(B)` problems: the outcome is the whole mixed
-    algorithm's, which finds the pose from the other triplets."""
+    their triplets is degenerate) and the wider rung does not apply (7 matches, no more
+    than its 12: it would leave no triplet out), every problem falls back, in passes of
+    `fallback_slots(B)` problems: the outcome is the whole mixed algorithm's, which finds
+    the pose from the other triplets. (The default ladder, `wider_spread=12`, whose
+    program `test_best_roots_reach_the_answer_of_every_triplet` compiled: on these
+    problems it is `wider_spread=None`'s, spread roots then the whole algorithm.)"""
     C, M, I = _collinear_spread(12, seed=4)
     chosen = np.asarray(_spread_matches(I, np.ones((12, 7), bool), 4))
     assert np.all(np.sort(chosen, axis=1) == [0, 1, 2, 3])  # the line's four
     assert fallback_slots(12) == 1  # twelve passes
-    quick, full = _many(4, None)(C, M, I), _many(None)(C, M, I)
+    args = _padded(C, M, I)
+    wider_rung = escalation(jp.Options(refine=4, wider_spread=12))[1]
+    assert wider_rung.refine_with == "mixed"
+    assert not np.any(rung_applies(wider_rung, np.sum(args[3], axis=1)))
+    quick, full = _many(4)(*args), _many(None)(*args)
     assert np.all(np.asarray(full.accepted))
     # every answer comes from a triplet the best roots never tried (one off the line)
     assert np.all(np.max(np.asarray(quick.triplet), axis=1) >= 4)
