@@ -228,7 +228,10 @@ def build_parser() -> argparse.ArgumentParser:
         "solve_pnp_batch for the --batch chunk sizes) for the point buckets holding "
         "--points, and keep them in "
         "the program cache ($JAXPOSE_CACHE_DIR, else ~/.cache/jaxpose), so that a new "
-        "process loads them instead of compiling. Programs already there are only loaded.",
+        "process loads them instead of compiling. Programs already there are only loaded. "
+        "--track builds the tracker's programs too (jaxpose track's per-frame solve and "
+        "its --smooth refinement), so that `jaxpose track` reaches its first tracked frame "
+        "without compiling.",
     )
     w.add_argument(
         "--points",
@@ -245,6 +248,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="B",
         help="solve_pnp_batch chunk sizes to build too (default none)",
+    )
+    w.add_argument(
+        "--track",
+        action="store_true",
+        help="build jaxpose track's programs too: the per-frame solve for 64-512 "
+        "measurements (a 640 x 480 video) and the --smooth refinement of up to 512 frames "
+        "(10-20 s more the first time on 2 cores; off by default)",
     )
     w.set_defaults(func=cmd_warmup)
     return parser

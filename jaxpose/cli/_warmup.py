@@ -1,5 +1,7 @@
 """`jaxpose warmup`: build the compiled programs of `solve_pnp`, `solve` and `solve_pnp_batch` ahead
-of time, into the program cache (`jaxpose.api._programs`), with a progress bar."""
+of time, into the program cache (`jaxpose.api._programs`), with a progress bar; with
+`--track`, the tracker's too (`jaxpose.apps._track_warmup`: the per-frame solve's buckets
+and the offline refinement's that `jaxpose track` runs on a 640 x 480 video)."""
 
 from __future__ import annotations
 
@@ -24,6 +26,10 @@ def cmd_warmup(args) -> int:
     if root is None:
         console.print("[yellow]the program cache is off (JAXPOSE_CACHE_DIR): nothing is kept")
     plan = warm_up_plan(args.points, args.batch)
+    if args.track:
+        from ..apps._track_warmup import track_warm_up_plan
+
+        plan += track_warm_up_plan()
     compiled = 0
     t0 = time.perf_counter()
     with Progress(

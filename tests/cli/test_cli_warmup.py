@@ -19,3 +19,21 @@ def test_warmup_refuses_bad_counts(capsys):
     assert main(["warmup", "--points", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("jaxpose warmup: error: --points")
+
+
+def test_warmup_track_adds_the_trackers_programs(capsys, monkeypatch):
+    # --track adds the tracker's programs to the plan (here its smallest buckets, so that
+    # the test compiles little); without it they are not built.
+    from jaxpose.apps import _track_warmup
+
+    small = _track_warmup.track_warm_up_plan
+
+    def plan():
+        return small(solve=(8,), refine=((8, 8),))
+
+    monkeypatch.setattr(_track_warmup, "track_warm_up_plan", plan)
+    assert main(["warmup", "--points", "12"]) == 0
+    assert "5 programs ready" in capsys.readouterr().out
+    assert main(["warmup", "--points", "12", "--track"]) == 0
+    out = capsys.readouterr().out
+    assert "7 programs ready" in out and "5 found" in out.replace("\n", " ")
