@@ -31,7 +31,8 @@ from ..geometry._errors import pose_error
 from ..geometry._pose import Observations, Pose, observations, transform
 from ..solvers._residuals import pixel_residuals, rms
 from ..solvers._status import Status
-from ._best import Answer, answer_batch, finish_linear_batch
+from ._answer import Answer, finish_linear_batch
+from ._best import answer_batch
 from ._implicit import polish
 from ._options import Options
 from ._start import answer_from_start

@@ -23,7 +23,8 @@ import jax.numpy as jnp
 from ..geometry._pose import Observations, Pose
 from ..solvers._residuals import pose_error
 from ..solvers._status import Status
-from ._best import Answer, _chosen
+from ._answer import Answer
+from ._best import _chosen
 from ._methods import per_triplet
 from ._mixed import mixed_from_initial_batch
 from ._options import Options

@@ -283,7 +283,13 @@ def test_finish_linear_batch_finishes_at_opencvs_optimum():
             jnp.asarray(C), pose.R, pose.t, jnp.asarray(M), jnp.asarray(I)
         )
 
-    found = Answer(np.zeros((6, 3), np.int32), start, error(obs, start), np.ones(6, np.int32))
+    found = Answer(
+        np.zeros((6, 3), np.int32),
+        start,
+        error(obs, start),
+        np.ones(6, np.int32),
+        np.full(6, np.inf),
+    )
     finish = jax.jit(finish_linear_batch)
     settled = finish(obs, found)
     best = np.asarray(error(obs, jp.geometry.Pose(R, t)))
