@@ -13,6 +13,11 @@ Methods, each run on every frame:
   (`jaxpose.apps.refine_track`: each frame's stored measurements plus a
   constant-velocity prior, default settings); its rate counts the tracking and the
   refinement;
+- `jaxpose_keypoints`: `jaxpose.apps.track` with `textured=` the same textured model:
+  on every tracked frame its points are matched to the frame's ORB keypoints (500, in
+  the model's predicted area) near their predicted projections (the 8 nearest within
+  10 px; the nearest descriptor, at most 64 bits and under 0.9 times the second
+  nearest's) and taken as point measurements beside the KLT points (Python API only);
 - `opencv_pnp`: the tutorial's detection per frame, written here with OpenCV's calls:
   ORB keypoints (2,000) of the frame, FLANN's LSH index (6 tables, key size 12, multi-
   probe level 1) matched two-nearest to the model's descriptors, Lowe's ratio test
@@ -166,10 +171,12 @@ def run_opencv(frames, textured, K, dist) -> tuple[list, list, float]:
     return measured, filtered, time.perf_counter() - began
 
 
-def run_jaxpose(frames, geo, textured, K, dist) -> tuple[list, float, dict, list, float]:
-    """`jaxpose.apps.track` from the keypoint path's first pose; per frame the pose (or
-    None where lost), the seconds the tracker spent, the start's details, and the same
-    after `refine_track` with the seconds it took."""
+def run_jaxpose(frames, geo, textured, K, dist, keypoints: bool = False
+                ) -> tuple[list, float, dict, list, float]:  # fmt: skip
+    """`jaxpose.apps.track` from the keypoint path's first pose (`keypoints`: with the
+    textured model's keypoints as measurements); per frame the pose (or None where
+    lost), the seconds the tracker spent, the start's details, and the same after
+    `refine_track` with the seconds it took."""
     import cv2
 
     from jaxpose.apps import locate_textured, recognition_reinit, refine_track, track
@@ -180,7 +187,8 @@ def run_jaxpose(frames, geo, textured, K, dist) -> tuple[list, float, dict, list
     start = (cv2.Rodrigues(first.rvec)[0], first.tvec.reshape(3))
     reinit = recognition_reinit(geo, K, dist, textured=textured)
     began = time.perf_counter()
-    results = list(track(frames, geo, K, dist, start, reinit=reinit))
+    extra = {"textured": textured} if keypoints else {}
+    results = list(track(frames, geo, K, dist, start, reinit=reinit, **extra))
     elapsed = time.perf_counter() - began
     poses = [(r.R, r.t) if r.ok else None for r in results]
     statuses = [r.status for r in results]
@@ -287,21 +295,26 @@ def run(frames: int = 455, repeats: int = 3) -> dict:
     dmaps = _distance_maps(grey)
     # The two run alternately `repeats` times (the machine is shared: its load moves);
     # the poses are the first run's, the rate each method's best run's.
-    cv_runs, jp_runs = [], []
+    cv_runs, jp_runs, kp_runs = [], [], []
     for _ in range(repeats):
         cv_runs.append(run_opencv(grey, textured, K, dist))
         jp_runs.append(run_jaxpose(grey, geo, textured, K, dist))
+        kp_runs.append(run_jaxpose(grey, geo, textured, K, dist, keypoints=True))
     (measured, filtered, _), (poses, _, info, smooth, _) = cv_runs[0], jp_runs[0]
     cv_s, jp_s = min(r[2] for r in cv_runs), min(r[1] for r in jp_runs)
+    kp_s = min(r[1] for r in kp_runs)
     both_s = min(r[1] + r[4] for r in jp_runs)
     methods = {
         "jaxpose": _figures(poses, centre, dmaps, geo, K, dist, jp_s) | info,
         "jaxpose_refined": _figures(smooth, centre, dmaps, geo, K, dist, both_s),
+        "jaxpose_keypoints": _figures(kp_runs[0][0], centre, dmaps, geo, K, dist, kp_s)
+        | {"statuses": kp_runs[0][2]["statuses"]},
         "opencv_pnp": _figures(measured, centre, dmaps, geo, K, dist, cv_s),
         "opencv_kalman": _figures(filtered, centre, dmaps, geo, K, dist, cv_s),
     }
     methods["jaxpose"]["seconds_each_run"] = [r[1] for r in jp_runs]
     methods["jaxpose_refined"]["refine_seconds_each_run"] = [r[4] for r in jp_runs]
+    methods["jaxpose_keypoints"]["seconds_each_run"] = [r[1] for r in kp_runs]
     methods["jaxpose_refined"]["refine_cost"] = info["refine_cost"]
     for key in ("opencv_pnp", "opencv_kalman"):
         methods[key]["seconds_each_run"] = [r[2] for r in cv_runs]

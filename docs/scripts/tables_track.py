@@ -11,6 +11,8 @@ from tables_format import caption, load, table
 LABELS = {
     "jaxpose": "jaxpose `track` (edges + KLT, linear method)",
     "jaxpose_refined": "jaxpose `track`, then `refine_track` (offline, all frames jointly)",
+    "jaxpose_keypoints": "jaxpose `track(textured=...)`: edges + KLT + the textured "
+    "model's keypoints near the prediction",
     "opencv_pnp": "OpenCV tutorial: ORB + FLANN + `solvePnPRansac`",
     "opencv_kalman": "OpenCV tutorial, with its Kalman filter",
 }

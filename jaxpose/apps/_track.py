@@ -22,6 +22,10 @@ Per frame, from the previous pose (the prediction):
    mostly noise, hardly count). The 6 x 6 normal equations are solved, the motion
    applied exactly, and the step repeated.
 
+With a textured model (`textured`, OpenCV's keypoints YAML), its points matched to the
+frame's ORB keypoints near their predicted projections join the KLT points as point
+measurements (opt-in; on `box.mp4` they do not help: `docs/tracking.md`).
+
 Each edge sample expects the contrast (sign and size) that the match nearest to it on
 the model had on the last frame, so that a printed line beside an edge is not taken
 for it.
@@ -133,6 +137,57 @@ class _Corners(NamedTuple):
 
 
 _NO_CORNERS = _Corners(np.zeros((0, 2)), np.zeros((0, 3)))
+
+#: Candidates (model points projected nearest a keypoint) whose descriptors are compared.
+_CANDIDATES = 8
+#: Set bits of each byte value (Hamming distances of ORB's binary descriptors).
+_POPCOUNT = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(axis=1)
+
+
+class _Keypoints(NamedTuple):
+    """A textured model's keypoint matching per frame: ORB, the model's points and their
+    descriptors, the search radius (px) around each point's predicted projection, the
+    largest Hamming distance taken and Lowe's ratio among the candidates."""
+
+    orb: object
+    points: np.ndarray  # (M, 3)
+    descriptors: np.ndarray  # (M, 32) uint8
+    radius: float = 10.0
+    max_distance: int = 64
+    ratio: float = 0.9
+
+
+def _keypoint_matches(grey8, keys: _Keypoints, geo, K, dist, R, t, size) -> _Corners:
+    """The frame's ORB keypoints (inside the model's predicted area) matched to the
+    textured model's points whose projection at the predicted pose `(R, t)` lies within
+    `keys.radius` of them (the `_CANDIDATES` nearest): each keypoint takes the nearest
+    descriptor among those candidates (at most `max_distance` bits, and under `ratio`
+    times the second nearest's). Distorted pixels, like the KLT points'."""
+    import cv2
+    from scipy.spatial import cKDTree
+
+    region = face_mask(geo, K, dist, R, t, size, erode=0)
+    found, descriptors = keys.orb.detectAndCompute(grey8, region)  # type: ignore[attr-defined]
+    if descriptors is None or len(found) == 0:
+        return _NO_CORNERS
+    pixels = np.array([k.pt for k in found], np.float64)
+    X = keys.points @ R.T + t
+    front = np.flatnonzero(X[:, 2] > 1e-9)
+    if len(front) == 0:
+        return _NO_CORNERS
+    rvec = cv2.Rodrigues(R)[0]
+    proj = cv2.projectPoints(keys.points[front], rvec, t, K, dist)[0].reshape(-1, 2)
+    # each keypoint's candidates: the `_CANDIDATES` nearest projections within the radius
+    _, near = cKDTree(proj).query(pixels, k=_CANDIDATES, distance_upper_bound=keys.radius)
+    found_any = near < len(front)  # (Q, k): a candidate (missing ones are len(front))
+    train = front[np.minimum(near, len(front) - 1)]
+    bits = _POPCOUNT[descriptors[:, None, :] ^ keys.descriptors[train]].sum(axis=2)
+    bits = np.where(found_any, bits, 256)
+    two = np.partition(bits, 1, axis=1)[:, :2]
+    best = np.argmin(bits, axis=1)
+    keep = (two[:, 0] <= keys.max_distance) & (two[:, 0] < keys.ratio * two[:, 1])
+    chosen = train[np.arange(len(pixels)), best][keep]
+    return _Corners(pixels[keep], keys.points[chosen].astype(np.float64))
 
 
 class _Contrasts(NamedTuple):
@@ -314,6 +369,7 @@ def track(
     *,
     options: TrackOptions | None = None,
     reinit: Callable[[np.ndarray, int], tuple | None] | None = None,
+    textured=None,
 ) -> Iterator[TrackedFrame]:
     """Track a model through frames (see the module docstring), one result per frame.
 
@@ -331,6 +387,10 @@ def track(
       the frames `options.reinit_every` and `options.reinit_wait` allow), then from the
       last pose held, until one is supported (`"reinitialised"`); None: from the last
       pose held only (the object must come back near where it was lost).
+    - `textured`: a `jaxpose.features.TexturedModel` with ORB descriptors, or None:
+      on every tracked frame its points are matched to the frame's ORB keypoints near
+      their predicted projections and taken as point measurements beside the KLT points
+      (two ray planes each, Eq. 5, with the points' robust weights).
 
     **Returns:** a generator of `TrackedFrame`, one per frame: a frame whose
     measurements do not support the pose is `"lost"` (`TrackOptions`: `min_rows`,
@@ -356,6 +416,17 @@ def track(
     if not isinstance(options, TrackOptions):
         raise ValueError(f"options must be a TrackOptions, got {type(options).__name__}")
 
+    keys = None
+    if textured is not None:
+        from ..features._keypoints import TexturedModel
+
+        if (not isinstance(textured, TexturedModel) or textured.descriptors.dtype != np.uint8
+                or textured.descriptors.shape[1:] != (32,)):  # fmt: skip
+            raise ValueError("textured must be None or a TexturedModel with ORB descriptors")
+        import cv2
+
+        keys = _Keypoints(cv2.ORB.create(nfeatures=500), np.asarray(textured.points, np.float64),
+                          np.ascontiguousarray(textured.descriptors))  # fmt: skip
     symmetries = _symmetries(geo) if reinit is not None else []
 
     def run() -> Iterator[TrackedFrame]:
@@ -396,7 +467,14 @@ def track(
                     moved = _solve(R_pred, t_pred, K, meas, options)
                     if moved.ok and np.all(np.isfinite(moved.t)):
                         R_pred, t_pred = moved.R, moved.t
-                tried = _fit(grey, geo, K, dist, R_pred, t_pred, corners, contrasts, size, options)
+                measured = corners
+                if keys is not None:  # the textured model's keypoints, near the prediction
+                    more = _keypoint_matches(grey8, keys, geo, K, dist, R_pred, t_pred, size)
+                    measured = _Corners(np.vstack([corners.pixels, more.pixels]),
+                                        np.vstack([corners.model, more.model]))  # fmt: skip
+                tried = _fit(grey, geo, K, dist, R_pred, t_pred, measured, contrasts, size,
+                             options)  # fmt: skip
+                tried = tried._replace(w_p=tried.w_p[: len(corners.pixels)])  # the KLT points'
                 good = tried if _supported(tried, usual, options) else None
                 status = "tracked"
             else:

@@ -369,3 +369,30 @@ def test_reinit_is_throttled():
         TrackOptions(reinit_wait=-1.0)
     with pytest.raises(ValueError, match="options.min_edge_length"):
         TrackOptions(min_edge_length=float("nan"))
+
+
+def test_keypoints_of_a_textured_model_as_measurements():
+    # box.mp4's first frames from the keypoint path's pose, with the tutorial's textured
+    # model: its keypoints matched near their predicted projections join the KLT points
+    # (more point measurements); the poses stay near those of edges and KLT alone (the
+    # model's registration error pulls them by up to about a degree).
+    from jaxpose.features import open_frames, read_camera, read_textured_model
+
+    data = sample_path("opencv_pose_box")
+    K_video, _ = read_camera(data / "box_video_camera.yml")
+    textured = read_textured_model(data / "cookies_ORB.yml.gz")
+    frames = list(open_frames(data / "box.mp4", gray=True, stop=8))
+    start = (cv2.Rodrigues(np.array([1.91258699, -1.26409631, 0.74108325]))[0],
+             np.array([21.43863207, 0.69211619, 152.12559535]))  # fmt: skip
+    plain = list(track(frames, GEO, K_video, None, start))
+    keyed = list(track(frames, GEO, K_video, None, start, textured=textured))
+    assert all(r.ok for r in keyed) and [r.status for r in keyed] == [r.status for r in plain]
+    assert sum(r.points for r in keyed) > sum(r.points for r in plain)
+    for a, b in zip(plain, keyed, strict=True):
+        turn = np.degrees(np.linalg.norm(cv2.Rodrigues(b.R @ a.R.T)[0]))
+        assert turn < 2.0 and np.linalg.norm(b.t - a.t) < 0.02 * np.linalg.norm(a.t)
+    with pytest.raises(ValueError, match="textured"):
+        track(frames, GEO, K_video, None, start, textured=BOX)
+    sift = textured._replace(descriptors=np.zeros((3, 128), np.float32))
+    with pytest.raises(ValueError, match="textured"):
+        track(frames, GEO, K_video, None, start, textured=sift)
