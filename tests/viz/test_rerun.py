@@ -13,7 +13,7 @@ from helpers import verify_recording
 from rerun.chunk import RrdReader
 
 import jaxpose as jp
-from jaxpose.apps._experiment import METHOD_NAMES, ExperimentResult
+from jaxpose.apps._experiment import METHOD_NAMES, ExperimentResult, run_experiment
 from jaxpose.solvers._status import Status
 
 
@@ -56,11 +56,10 @@ def bench():
 
 @pytest.fixture(scope="module")
 def mixed_result(bench):
-    obs = jp.observations(bench.camera, bench.model_points, bench.image_points)
-    # No second chance from the other roots: it compiles much faster, and the bench's
-    # triplets still span every kind of status the recording must show.
-    run = jax.jit(lambda obs: jp.mixed(obs, second_chance_budget=0))
-    return jax.tree.map(np.asarray, run(obs))
+    """The mixed algorithm over every triplet of the bench: the experiment's own (its
+    stored program, which `tests/strategy/test_mixed.py` and `jaxpose reproduce` run on the
+    same bench: compiled once for the suite, not once more here)."""
+    return run_experiment(bench).mixed
 
 
 def _answer(bench, res) -> jp.Solution:
