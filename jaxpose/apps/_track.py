@@ -164,7 +164,7 @@ def _keypoint_matches(grey8, keys: _Keypoints, geo, K, dist, R, t, size) -> _Cor
     descriptor among those candidates (at most `max_distance` bits, and under `ratio`
     times the second nearest's). Distorted pixels, like the KLT points'."""
     import cv2
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree  # (scipy: installed with jax, which needs it)
 
     region = face_mask(geo, K, dist, R, t, size, erode=0)
     found, descriptors = keys.orb.detectAndCompute(grey8, region)  # type: ignore[attr-defined]
@@ -178,7 +178,7 @@ def _keypoint_matches(grey8, keys: _Keypoints, geo, K, dist, R, t, size) -> _Cor
     rvec = cv2.Rodrigues(R)[0]
     proj = cv2.projectPoints(keys.points[front], rvec, t, K, dist)[0].reshape(-1, 2)
     # each keypoint's candidates: the `_CANDIDATES` nearest projections within the radius
-    _, near = cKDTree(proj).query(pixels, k=_CANDIDATES, distance_upper_bound=keys.radius)
+    _, near = KDTree(proj).query(pixels, k=_CANDIDATES, distance_upper_bound=keys.radius)
     found_any = near < len(front)  # (Q, k): a candidate (missing ones are len(front))
     train = front[np.minimum(near, len(front) - 1)]
     bits = _POPCOUNT[descriptors[:, None, :] ^ keys.descriptors[train]].sum(axis=2)
