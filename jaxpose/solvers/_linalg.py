@@ -17,7 +17,13 @@ from jaxtyping import Array, Float
 
 from ..geometry._validate import no_type_check
 
-__all__ = ["cholesky_solve", "positive_definite_solve", "symmetric_pinv"]
+__all__ = [
+    "JACOBI_SWEEPS",
+    "cholesky_solve",
+    "jacobi_eigh",
+    "positive_definite_solve",
+    "symmetric_pinv",
+]
 
 
 # `cholesky_solve` checks its arguments' shapes itself (a `ValueError` naming it): no
@@ -95,14 +101,66 @@ def _equilibrate(A):
     return 0.5 * (Ae + Ae.T), d
 
 
+#: Sweeps of `jacobi_eigh`: each sweep squares the off-diagonal's size (once it is
+#: small); ten leave it below rounding in float64 for 6x6 matrices (random, singular,
+#: graded over 10^10, with repeated eigenvalues: 2,000 of each, residual below 4e-15).
+JACOBI_SWEEPS = 10
+
+
+def jacobi_eigh(A: Float[Array, "k k"], sweeps: int = JACOBI_SWEEPS):
+    """Eigenvalues and eigenvectors `(lam, V)` of a small symmetric matrix, `A = V
+    diag(lam) V^T`, by cyclic Jacobi rotations (Golub & Van Loan, Algorithm 8.5.3), the
+    rotations unrolled over the static size and `sweeps` sweeps in a loop: no LAPACK call
+    (a program holding one must set LAPACK up when it is loaded, a third of a second), and
+    under `jax.vmap` elementwise operations on arrays of the batch. Eigenvalues unsorted;
+    values only (no derivative)."""
+    A = jax.lax.stop_gradient(A)
+    k = A.shape[0]
+    dtype = A.dtype
+    pairs = [(p, q) for p in range(k) for q in range(p + 1, k)]
+    a = {(i, j): A[i, j] for i in range(k) for j in range(i, k)}
+    v = {(i, j): jnp.asarray(1.0 if i == j else 0.0, dtype) for i in range(k) for j in range(k)}
+
+    def entry(a, i, j):
+        return a[(i, j) if i <= j else (j, i)]
+
+    def sweep(_, carry):
+        a, v = dict(carry[0]), dict(carry[1])
+        for p, q in pairs:
+            app, aqq, apq = a[(p, p)], a[(q, q)], a[(p, q)]
+            zero = apq == 0
+            tau = (aqq - app) / (2 * jnp.where(zero, 1, apq))
+            sign = jnp.where(tau >= 0, 1.0, -1.0).astype(dtype)
+            t = jnp.where(zero, 0, sign / (jnp.abs(tau) + jnp.hypot(jnp.ones_like(tau), tau)))
+            c = 1 / jnp.sqrt(1 + t * t)
+            s = t * c
+            for r in range(k):
+                if r in (p, q):
+                    continue
+                arp, arq = entry(a, r, p), entry(a, r, q)
+                a[(r, p) if r < p else (p, r)] = c * arp - s * arq
+                a[(r, q) if r < q else (q, r)] = s * arp + c * arq
+            a[(p, p)], a[(q, q)] = app - t * apq, aqq + t * apq
+            a[(p, q)] = jnp.zeros_like(apq)
+            for r in range(k):
+                vrp, vrq = v[(r, p)], v[(r, q)]
+                v[(r, p)], v[(r, q)] = c * vrp - s * vrq, s * vrp + c * vrq
+        return a, v
+
+    a, v = jax.lax.fori_loop(0, sweeps, sweep, (a, v))
+    lam = jnp.stack([a[(i, i)] for i in range(k)])
+    V = jnp.stack([jnp.stack([v[(i, j)] for j in range(k)]) for i in range(k)])
+    return lam, V
+
+
 def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
     """Pseudo-inverse of a small symmetric matrix, finite for every input.
 
     The matrix is equilibrated by its diagonal (`D A D`, `D = diag(|A_ii|)^(-1/2)`), then
-    eigen-decomposed; eigenvalues of magnitude at most `rcond` times the largest are
-    dropped. The derivative is `-A^+ dA A^+` (exact where `A` is invertible, finite
-    everywhere, unlike the eigen-decomposition's own at repeated eigenvalues).
-    Returns `(A^+, rank, positive_definite)`.
+    eigen-decomposed (`jacobi_eigh`: no LAPACK call); eigenvalues of magnitude at most
+    `rcond` times the largest are dropped. The derivative is `-A^+ dA A^+` (exact where
+    `A` is invertible, finite everywhere, unlike the eigen-decomposition's own at repeated
+    eigenvalues). Returns `(A^+, rank, positive_definite)`.
     """
     A_in = A
     A = jax.lax.stop_gradient(A)
@@ -110,7 +168,7 @@ def symmetric_pinv(A: Float[Array, "k k"], rcond: float | None = None):
     k = A.shape[0]
     rcond = 64 * float(jnp.finfo(dtype).eps) if rcond is None else rcond
     Ae, d = _equilibrate(A)
-    lam, V = jnp.linalg.eigh(Ae)
+    lam, V = jacobi_eigh(Ae)
     cutoff = rcond * jnp.max(jnp.abs(lam))
     keep = (jnp.abs(lam) > cutoff) & (jnp.abs(lam) > jnp.finfo(dtype).tiny)
     inv_lam = jnp.where(keep, 1 / jnp.where(keep, lam, 1), 0)
