@@ -434,7 +434,9 @@ class RobustOptions:
     - `rounds`: refine-then-recompute-inliers rounds (default `2`).
     - `iterations`: steps of each linear refinement (default: `Options.linear_iterations`).
     - `max_steps`: Levenberg-Marquardt's iteration budget (default: `Options.max_steps`).
-    - `min_area`, `collinear_tol`, `max_triplets`: the triplet settings, as `Options`'s.
+    - `min_area`, `collinear_tol`, `max_triplets`: the triplet settings, as `Options`'s;
+      the aligned test's area is at most $\tau^2$ here (`jaxpose.robust`'s step 1), since
+      the spread it is relative to counts the wrong matches too.
     """
 
     inlier_threshold: float = 8.0

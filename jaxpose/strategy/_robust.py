@@ -3,7 +3,13 @@ r"""Robust mode: pose recovery when some of the matches are wrong.
 For one problem, as one fixed-shape batch (no random sampling: every triplet, or the
 fixed seeded sample of `jaxpose.strategy.triplet_indices` above `max_triplets`):
 
-1. the three-point method on every triplet, all four roots (near-real ones included);
+1. the three-point method on every triplet, all four roots (near-real ones included). A
+   triplet counts as aligned below the smaller of two areas: `min_area` times the spread
+   of all matches (`jaxpose.strategy.area_threshold`, as the mixed algorithm's) and
+   $\tau^2$, the inlier test's own scale. The spread of all matches counts the wrong
+   ones too: a small patch of right matches among wrong ones spread over the image would
+   otherwise count as aligned, and no pose would be found (OpenCV's USAC test with 90% of
+   the matches wrong);
 2. every root scored by consensus over all matches: match `i` is an inlier of a pose
    when its point lies in front of the camera and its reprojection residual is below
    the inlier threshold, $\lVert \hat u_i - u_i \rVert < \tau$; the score is the
@@ -36,11 +42,12 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._pose import Observations, Pose, observations, transform
 from ..solvers._nonlinear import nonlinear
+from ..solvers._p3p import three_point
 from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
 from ..solvers._status import Status
 from ._mixed import linear_from
 from ._options import RobustOptions, resolve
-from ._triplets import triplet_indices, triplet_roots
+from ._triplets import area_threshold, triplet_indices
 
 __all__ = ["RobustResult", "robust"]
 
@@ -129,9 +136,17 @@ def robust(
         triplet_indices(n, options.max_triplets) if triplets is None else triplets, jnp.int32
     )
     thr = jnp.asarray(options.inlier_threshold, dtype)
+    area = jnp.minimum(area_threshold(obs, options), thr * thr)  # step 1's aligned test
 
     def candidates(ijk):
-        sol = triplet_roots(obs, ijk, options)
+        sol = three_point(
+            obs.camera,
+            obs.model[ijk],
+            obs.image[ijk],
+            min_area=area,
+            collinear_tol=options.collinear_tol,
+            approximate=True,
+        )
         valid = sol.valid & jnp.all(obs.mask[ijk])
         _, count, cost = jax.vmap(lambda R, t: _score(obs, Pose(R, t), thr))(sol.R, sol.t)
         return sol.R, sol.t, valid, count, cost

@@ -46,6 +46,15 @@ def _bench_cases():
         wrong = np.sort(np.random.default_rng(100 + seed).choice(N, k, replace=False))
         img = _swap(b.image_points, wrong)
         cases.append((b, b.model_points, img, np.ones(N, bool), wrong))
+    # Six right matches among ten wrong ones spread far wider than the object: every
+    # triangle of right matches is below the aligned test's area relative to the spread
+    # of all matches (`area_threshold`), not below the inlier test's tau^2 (robust mode's
+    # cap; without it, no pose: OpenCV's USAC case with 90% wrong matches).
+    b = jp.default_bench(seed=10)
+    wrong = np.sort(np.random.default_rng(110).choice(N, 10, replace=False))
+    img = b.image_points.copy()
+    img[wrong] = np.random.default_rng(111).uniform(-2e4, 2e4, (10, 2))
+    cases.append((b, b.model_points, img, np.ones(N, bool), wrong))
     b = jp.default_bench(seed=9)
     wrong = np.array([1, 4, 9, 12])
     img = _swap(b.image_points, wrong)
