@@ -12,6 +12,8 @@ Every figure is measured in a fresh Python process (`spawn`), with the program c
 - `solve_warm`, `solve_second`: a plain `jaxpose.solve` (not jitted; float64, the bench,
   n = 16) in a new process once the cache holds its program: import + first result,
   then the second call;
+- `grad_warm`, `grad_second`: the same for the README's plain `jax.grad` of it (the
+  image points' gradient of `pose.t.sum()`, not jitted);
 - `cli_solve`, `cli_point`, `cli_recognize`: the whole `jaxpose solve bench.json`,
   `jaxpose point --pixel 445 240` and `jaxpose recognize` of the box photograph (its
   mesh), each the second run of its command (the first builds the caches);
@@ -45,6 +47,8 @@ TARGETS = {
     "new_n": ("a new n inside a compiled bucket (16 -> 13): first call", 0.05),
     "solve_warm": ("fresh process, cache built: import + first plain jp.solve (bench)", 1.5),
     "solve_second": ("the second plain jp.solve call of that process", 0.005),
+    "grad_warm": ("fresh process, cache built: import + first plain jax.grad(jp.solve)", 3.0),
+    "grad_second": ("the second plain jax.grad(jp.solve) call of that process", 0.05),
     "cli_solve": ("jaxpose solve bench.json, whole command, caches built", 2.0),
     "cli_point": ("jaxpose point --pixel 445 240, whole command, caches built", 2.0),
     "cli_recognize": ("jaxpose recognize, the box photograph, whole command, caches built", 2.0),
@@ -84,7 +88,7 @@ def problem(n, seed=0):
 problems = [problem(n) for n in spec["points"]]
 t0 = time.perf_counter()
 import jax
-if spec.get("entry") == "solve":
+if spec.get("entry") in ("solve", "grad"):
     jax.config.update("jax_enable_x64", True)
 import jaxpose as jp
 from jaxpose.api import _programs
@@ -96,7 +100,16 @@ if spec.get("entry") == "solve":  # a plain jp.solve on the bench, twice
         s = time.perf_counter()
         sol = jax.block_until_ready(jp.solve(bench.camera, bench.model_points, bench.image_points))
         out["calls"].append({"n": 16, "s": time.perf_counter() - s, "ok": bool(sol.accepted)})
-for obj, img, K in problems:  # (none for the solve entry)
+if spec.get("entry") == "grad":  # a plain jax.grad of jp.solve on the bench, twice
+    bench = jp.apps.default_bench()
+    C, M = bench.camera, bench.model_points
+    grad = jax.grad(lambda image: jp.solve(C, M, image).pose.t.sum())
+    for _ in range(2):
+        s = time.perf_counter()
+        g = np.asarray(jax.block_until_ready(grad(bench.image_points)))
+        ok = bool(np.isfinite(g).all())
+        out["calls"].append({"n": 16, "s": time.perf_counter() - s, "ok": ok})
+for obj, img, K in problems:  # (none for the solve and grad entries)
     s = time.perf_counter()
     ok, _, _ = jp.solve_pnp(obj, img, K)
     out["calls"].append({"n": len(obj), "s": time.perf_counter() - s, "ok": bool(ok)})
@@ -199,6 +212,12 @@ def measure(quick: bool = False) -> dict:
         if "failed" not in solve:
             figures["solve_warm"] = solve["import_s"] + solve["calls"][0]["s"]
             figures["solve_second"] = solve["calls"][1]["s"]
+        _spawn({"entry": "grad", "points": []}, cache)  # builds its program
+        grad = _spawn({"entry": "grad", "points": []}, cache)
+        res["grad"] = grad
+        if "failed" not in grad:
+            figures["grad_warm"] = grad["import_s"] + grad["calls"][0]["s"]
+            figures["grad_second"] = grad["calls"][1]["s"]
         res["commands"] = _commands(Path(tmp) / "cli-cache", Path(tmp) / "cli")
         for key, r in res["commands"].items():
             figures[key] = r["second_s"]

@@ -1,9 +1,9 @@
 """Build the standard compiled programs ahead of time (`jaxpose warmup`).
 
 `warm_up` compiles (or finds already on disk) the programs that `solve_pnp`,
-`solve_pnp_batch` and a plain `solve` (float64, default options) run for each point
-bucket, and stores them in the program cache (`jaxpose.api._programs`), so that the first
-call of a new process only loads them.
+`solve_pnp_batch`, a plain `solve` and a plain `jax.grad` of it (float64, default
+options) run for each point bucket, and stores them in the program cache
+(`jaxpose.api._programs`), so that the first call of a new process only loads them.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from ._pnp import (
     _values,
 )
 from ._programs import POINT_BUCKETS, Program, bucket_points, program
-from ._solve import _stored_program
+from ._solve import _derivative_program, _stored_program
 
 __all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_plan"]
 
@@ -64,9 +64,13 @@ def warm_up_plan(
     points: Iterable[int] = DEFAULT_POINTS,
     batches: Iterable[int] = DEFAULT_BATCHES,
     options: Options | None = None,
+    gradients: bool = True,
 ) -> list[tuple[str, Callable[[], bool]]]:
     """The programs `warm_up` builds, as `(description, build)` pairs: `build()` compiles
-    the program (or loads it) and returns whether it compiled."""
+    the program (or loads it) and returns whether it compiled. `gradients`: the program
+    of a plain `jax.grad` (`jax.jacrev`, `jax.jacfwd`, `jax.jvp`) of `solve` too, the
+    answer and its Jacobian (`jaxpose.api._solve._derivative_program`; its first rung's,
+    which a problem accepted there runs)."""
     options = Options() if options is None else options
     plan: list[tuple[str, Callable[[], bool]]] = []
     stages = list(_stages(options))
@@ -99,6 +103,18 @@ def warm_up_plan(
 
             what = "solve" if k == 0 else "solve, the whole escalation"
             plan.append((f"{what}, {n} points", build_solve))
+        if gradients:  # the first rung's: the whole escalation's compiles on first use
+
+            def build_gradient(n=n, solve_key=keys[0]) -> bool:
+                prog = program(_derivative_program, solve_key)
+                before = prog.compiled
+                K = np.asarray([[800.0, 0, 320, 0], [0, 800, 240, 0], [0, 0, 1, 0]])
+                shapes = (np.zeros((1, n, 3)), np.zeros((1, n, 2)), np.ones((1, n), bool))
+                with jax.enable_x64(True):
+                    prog.executable(values, K, *shapes, None)
+                return prog.compiled > before
+
+            plan.append((f"jax.grad(solve), {n} points", build_gradient))
         for B in sorted({min(int(b), CHUNK) for b in batches}):
 
             def build_batch(n=n, B=B) -> bool:
@@ -120,14 +136,15 @@ def warm_up(
     batches: Iterable[int] = DEFAULT_BATCHES,
     options: Options | None = None,
     progress: Callable[[str], None] | None = None,
+    gradients: bool = True,
 ) -> list[Built]:
-    """Build the programs of `solve_pnp` (one per rung of the escalation) and of a plain
-    `solve` (float64, one problem) for the buckets of `points`, and of `solve_pnp_batch`
-    for the chunk sizes `batches`, with `options` (default `Options()`).
-    Programs already on disk are only loaded. `progress(description)` is called before
-    each. Returns what was built."""
+    """Build the programs of `solve_pnp` (one per rung of the escalation), of a plain
+    `solve` (float64, one problem) and, with `gradients`, of a plain `jax.grad` of it for
+    the buckets of `points`, and of `solve_pnp_batch` for the chunk sizes `batches`, with
+    `options` (default `Options()`). Programs already on disk are only loaded.
+    `progress(description)` is called before each. Returns what was built."""
     built = []
-    for what, build in warm_up_plan(points, batches, options):
+    for what, build in warm_up_plan(points, batches, options, gradients):
         if progress is not None:
             progress(what)
         built.append(Built(what, build()))

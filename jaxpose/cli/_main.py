@@ -224,7 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
     w = sub.add_parser(
         "warmup",
         help="compile solve_pnp's and solve's programs ahead of time, into the program cache",
-        description="Build the compiled programs of solve_pnp and of a plain solve (and of "
+        description="Build the compiled programs of solve_pnp, of a plain solve and of a "
+        "plain jax.grad of it (and of "
         "solve_pnp_batch for the --batch chunk sizes) for the point buckets holding "
         "--points, and keep them in "
         "the program cache ($JAXPOSE_CACHE_DIR, else ~/.cache/jaxpose), so that a new "

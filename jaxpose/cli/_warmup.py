@@ -1,7 +1,8 @@
-"""`jaxpose warmup`: build the compiled programs of `solve_pnp`, `solve` and `solve_pnp_batch` ahead
-of time, into the program cache (`jaxpose.api._programs`), with a progress bar; with
-`--track`, the tracker's too (`jaxpose.apps._track_warmup`: the per-frame solve's buckets
-and the offline refinement's that `jaxpose track` runs on a 640 x 480 video)."""
+"""`jaxpose warmup`: build the compiled programs of `solve_pnp`, `solve` (and a plain
+`jax.grad` of it) and `solve_pnp_batch` ahead of time, into the program cache
+(`jaxpose.api._programs`), with a progress bar; with `--track`, the tracker's too
+(`jaxpose.apps._track_warmup`: the per-frame solve's buckets and the offline
+refinement's that `jaxpose track` runs on a 640 x 480 video)."""
 
 from __future__ import annotations
 

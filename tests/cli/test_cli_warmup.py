@@ -1,5 +1,5 @@
-"""`jaxpose warmup`: the programs of `solve_pnp` and `solve` built ahead of time, found the second
-time; bad counts refused in one line."""
+"""`jaxpose warmup`: the programs of `solve_pnp`, `solve` and its gradient built ahead of time,
+found the second time; bad counts refused in one line."""
 
 from jaxpose.api import _programs
 from jaxpose.cli._main import main
@@ -8,11 +8,11 @@ from jaxpose.cli._main import main
 def test_warmup_builds_then_finds(capsys):
     assert main(["warmup", "--points", "12"]) == 0
     out = capsys.readouterr().out
-    assert "5 programs ready" in out
+    assert "6 programs ready" in out
     folder = _programs._folder()
     assert folder is not None and str(folder) in out.replace("\n", "")
     assert main(["warmup", "--points", "9", "16"]) == 0  # the same bucket: nothing new
-    assert "5 programs ready (0 compiled, 5 found)" in capsys.readouterr().out
+    assert "6 programs ready (0 compiled, 6 found)" in capsys.readouterr().out
 
 
 def test_warmup_refuses_bad_counts(capsys):
@@ -33,7 +33,7 @@ def test_warmup_track_adds_the_trackers_programs(capsys, monkeypatch):
 
     monkeypatch.setattr(_track_warmup, "track_warm_up_plan", plan)
     assert main(["warmup", "--points", "12"]) == 0
-    assert "5 programs ready" in capsys.readouterr().out
+    assert "6 programs ready" in capsys.readouterr().out
     assert main(["warmup", "--points", "12", "--track"]) == 0
     out = capsys.readouterr().out
-    assert "7 programs ready" in out and "5 found" in out.replace("\n", " ")
+    assert "8 programs ready" in out and "6 found" in out.replace("\n", " ")
