@@ -305,6 +305,12 @@ def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
     else:
         out = run(*args)  # type: ignore[operator]
     R1, t1, tukey, scales, rms, judged, ok = (np.asarray(a) for a in out)
+    if not (np.all(np.isfinite(R1)) and np.all(np.isfinite(t1))):
+        # Measurements that leave a motion unmeasured (edges all nearly parallel, no
+        # points) can send the iterations off to a non-finite pose: no pose, the start kept.
+        rows = track_rows(K, meas)
+        return Solved(R, t, np.zeros(E), np.zeros(P), 0.0, 0.0, False,
+                      rows._replace(weights=np.zeros(U)))  # fmt: skip
     tukey = tukey[:U].astype(np.float64)
     rows = TrackRows(padded.model[:U].astype(np.float64), padded.planes[:U].astype(np.float64),
                      padded.mask[:U], padded.point[:U], tukey,
