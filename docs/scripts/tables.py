@@ -50,7 +50,7 @@ from tables_speed import (  # noqa: E402
     speed_phases,
     startup,
 )
-from tables_track import track_box  # noqa: E402
+from tables_track import track_box, track_rendered  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -197,6 +197,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "gradients": gradients,
     "opencv_cases": opencv_cases,
     "track_box": track_box,
+    "track_rendered": track_rendered,
     "statuses": statuses,
     "paper_table1": paper_table1,
 }
