@@ -337,16 +337,37 @@ def _compile(lowered, fresh: bool):
     serializes without its machine code on the CPU (jax 0.10: the stored program, once
     loaded, fails with "Function ... not found"), so a program that will be stored is
     always compiled."""
-    bypass = contextlib.nullcontext()
-    if fresh:
-        try:
-            from jax._src.config import enable_compilation_cache
-
-            bypass = enable_compilation_cache(False)
-        except ImportError:  # pragma: no cover - a jax without the switch
-            pass
-    with bypass:
+    with _without_jax_cache() if fresh else contextlib.nullcontext():
         return lowered.compile(compiler_options=compiler_options())
+
+
+_BYPASS = threading.Lock()
+
+
+@contextlib.contextmanager
+def _without_jax_cache():
+    """JAX's persistent compilation cache neither read nor written inside. Its switch
+    (`enable_compilation_cache`) alone is not enough: JAX decides whether the cache is
+    used at its first compilation in the process and keeps the answer, so after any
+    compilation with the cache on (an eager operation, e.g. under a plain `jax.grad`) a
+    program would still be taken from it; that decision is set aside here too, and put
+    back after."""
+    try:
+        from jax._src import compilation_cache as cache
+        from jax._src.config import enable_compilation_cache
+    except ImportError:  # pragma: no cover - a jax without the switch
+        yield
+        return
+    with _BYPASS, enable_compilation_cache(False):
+        decided = (getattr(cache, "_cache_checked", None), getattr(cache, "_cache_used", None))
+        if None in decided:  # pragma: no cover - another jax: the switch alone
+            yield
+            return
+        cache._cache_checked, cache._cache_used = True, False
+        try:
+            yield
+        finally:
+            cache._cache_checked, cache._cache_used = decided
 
 
 def program_name(fn: Callable, static: tuple = (), keywords: tuple = ()) -> str:

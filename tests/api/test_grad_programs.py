@@ -112,6 +112,20 @@ def test_jvp_and_linearize_through_the_stored_program():
     _close(linear(dx), expected)
 
 
+def test_solve_many_through_the_stored_program():
+    """`solve_many`'s plain derivative runs the same stored program (a batch of one
+    here: `solve`'s shapes) and gives `solve`'s."""
+
+    def many(image):
+        sol = jp.solve_many(C, M[None], image)
+        return jnp.concatenate([sol.pose.R.reshape(1, 9), sol.pose.t], axis=1)
+
+    C, M, x = _problem(1)
+    got = jax.jacrev(many)(x[None])
+    assert got.shape == (1, 12, 1, SIZE, 2)
+    _close(got[0, :, 0], _reference(C, M, x)[2], rows=slice(0, 12))
+
+
 def test_no_nan_through_the_stored_program():
     """A non-finite match: a zero, finite derivative (the placeholder answer). A
     noise-free problem at the identity rotation: finite, the traced path's for the pose
@@ -161,11 +175,13 @@ def test_a_new_process_loads_the_derivative_instead_of_tracing():
     here = np.asarray(jax.grad(lambda i: jp.solve(C, M, i).pose.t.sum())(x))
     script = textwrap.dedent(
         """
+        import sys
         import jax
         jax.config.update("jax_enable_x64", True)
         import numpy as np
         import jaxpose as jp
         from jaxpose.api import _programs, _solve
+        _programs._FINGERPRINT = sys.argv[1]  # this test's (sources edited meanwhile)
         traced = []
         original = _solve.solve_problems
         def counted(*args, **kwargs):
@@ -183,7 +199,11 @@ def test_a_new_process_loads_the_derivative_instead_of_tracing():
     )
     root = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))
     out = subprocess.run(
-        [sys.executable, "-c", script], cwd=root, capture_output=True, text=True, check=False
+        [sys.executable, "-c", script, _programs.fingerprint()],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert out.returncode == 0, out.stderr
     counts, grad = out.stdout.strip().splitlines()
