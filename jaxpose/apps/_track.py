@@ -10,6 +10,8 @@ Per frame, from the previous pose (the prediction):
 2. **KLT points** (`jaxpose.features.track_points`) followed from the previous frame,
    each with its model point found once by casting its ray onto the mesh
    (`cast_rays`); their set is topped up inside the visible faces when it runs low.
+   Where the mean grey level changed by over 5% (an exposure step), the previous frame
+   is first brought to the new one's mean and spread.
 3. **The linear method** (`jaxpose.apps._track_solve`, one compiled program per bucket
    of measurement counts): each edge match is the plane through the camera centre and
    its image line, each point the two planes of its visual ray (the paper's Eq. 5); the
