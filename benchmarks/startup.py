@@ -232,18 +232,12 @@ def measure(quick: bool = False) -> dict:
                 figures[key] = r["import_s"] + r["calls"][0]["s"]
         if "failed" not in new_n:
             figures["new_n"] = new_n["calls"][1]["s"]
-        _spawn({"entry": "solve", "points": []}, cache)  # builds its program
-        solve = _median_run({"entry": "solve", "points": []}, cache)
-        res["solve"] = solve
-        if "failed" not in solve:
-            figures["solve_warm"] = solve["import_s"] + solve["calls"][0]["s"]
-            figures["solve_second"] = solve["calls"][1]["s"]
-        _spawn({"entry": "grad", "points": []}, cache)  # builds its program
-        grad = _median_run({"entry": "grad", "points": []}, cache)
-        res["grad"] = grad
-        if "failed" not in grad:
-            figures["grad_warm"] = grad["import_s"] + grad["calls"][0]["s"]
-            figures["grad_second"] = grad["calls"][1]["s"]
+        for entry in ("solve", "grad"):
+            _spawn({"entry": entry, "points": []}, cache)  # builds its program
+            res[entry] = run = _median_run({"entry": entry, "points": []}, cache)
+            if "failed" not in run:
+                figures[f"{entry}_warm"] = run["import_s"] + run["calls"][0]["s"]
+                figures[f"{entry}_second"] = run["calls"][1]["s"]
         res["commands"] = _commands(Path(tmp) / "cli-cache", Path(tmp) / "cli")
         for key, r in res["commands"].items():
             figures[key] = r["second_s"]

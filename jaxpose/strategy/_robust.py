@@ -42,12 +42,11 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ..geometry._pose import Observations, Pose, observations, transform
 from ..solvers._nonlinear import nonlinear
-from ..solvers._p3p import three_point
 from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
 from ..solvers._status import Status
 from ._mixed import linear_from
 from ._options import RobustOptions, resolve
-from ._triplets import area_threshold, triplet_indices
+from ._triplets import area_threshold, triplet_indices, triplet_roots
 
 __all__ = ["RobustResult", "robust"]
 
@@ -139,14 +138,7 @@ def robust(
     area = jnp.minimum(area_threshold(obs, options), thr * thr)  # step 1's aligned test
 
     def candidates(ijk):
-        sol = three_point(
-            obs.camera,
-            obs.model[ijk],
-            obs.image[ijk],
-            min_area=area,
-            collinear_tol=options.collinear_tol,
-            approximate=True,
-        )
+        sol = triplet_roots(obs, ijk, options, area)
         valid = sol.valid & jnp.all(obs.mask[ijk])
         _, count, cost = jax.vmap(lambda R, t: _score(obs, Pose(R, t), thr))(sol.R, sol.t)
         return sol.R, sol.t, valid, count, cost

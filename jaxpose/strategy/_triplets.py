@@ -133,16 +133,19 @@ def area_threshold(obs: Observations, options) -> Float[Array, "*B"]:
     return options.min_area * spread
 
 
-def triplet_roots(obs: Observations, ijk: Int[Array, " 3"], options) -> ThreePointResult:
+def triplet_roots(
+    obs: Observations, ijk: Int[Array, " 3"], options, area: Array | None = None
+) -> ThreePointResult:
     """Step 1 on the matches `ijk`: up to four poses, near-real roots included (a double
     root that noise made complex is a useful start), with the degeneracy tests of
     `options` (`min_area`, relative to the problem's spread: `area_threshold`, and
-    `collinear_tol`). Masked matches are not tested here."""
+    `collinear_tol`). `area`: the aligned test's area when not `area_threshold`'s (robust
+    mode caps it). Masked matches are not tested here."""
     return three_point(
         obs.camera,
         obs.model[ijk],
         obs.image[ijk],
-        min_area=area_threshold(obs, options),
+        min_area=area_threshold(obs, options) if area is None else area,
         collinear_tol=options.collinear_tol,
         approximate=True,
     )
