@@ -299,6 +299,12 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     picked = take_along([*R, *t], pick, axis=1)
     R0, t0 = Mat3(*picked[:9]), Vec3(*picked[9:])
     its = options.linear_iterations
+    mixed = options.refine_with == "mixed"
+    if two and not mixed:
+        # (the default: one linear-kernel program for both columns and the partner)
+        assert plane is not None
+        started = jnp.stack([started[:, 0], started[:, 1] & plane[2]], axis=1)
+        return _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options)
     if two:
         assert plane is not None
         flat_model = plane[2]
@@ -324,7 +330,6 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
 
     # 4. acceptance, as the mixed algorithm's
     thr = threshold(obs, jnp.min(error, axis=-1), options)
-    mixed = options.refine_with == "mixed"
     status_k = jnp.full_like(lin_status, Status.ACCEPTED_LINEAR)
     if mixed:
         R1, t1, lin_error, converged, status_k = _mixed_starts(obs, thr, R0, t0, started, options)
@@ -368,7 +373,15 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
         step = jnp.where(better, step_p, step)
 
     first = jnp.where(started[:, 0], lin_status[:, 0], Status.NO_SOLUTION)
-    status = jnp.where(accepted, accepted_status, jnp.where(converged_k, Status.REJECTED, first))
+    return _best(pose, error, accepted, accepted_status, converged_k, first, triplets, root, step)
+
+
+def _best(pose, error, accepted, accepted_status, converged, first, triplets, root, step) -> Best:
+    """The block's `Best`: the chosen candidate's `error` (a converged one), whether it
+    is `accepted` (its status then `accepted_status`, else `REJECTED` if `converged`,
+    else `first`, the status of the best root's run), the triplet of its `root`."""
+    big = jnp.finfo(error.dtype).max
+    status = jnp.where(accepted, accepted_status, jnp.where(converged, Status.REJECTED, first))
     triplet = jnp.take_along_axis(triplets, (root // 4)[:, None, None], axis=1)[:, 0]
     return Best(
         pose=pose,
@@ -377,6 +390,113 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
         triplet=triplet.astype(jnp.int32),
         accepted=accepted,
         step=step,
+    )
+
+
+class _Chosen(NamedTuple):
+    """The lowest-error converged column of each problem (`_two_attitudes`)."""
+
+    R: Mat3
+    t: Vec3
+    error: Array
+    converged: Array
+    root: Array
+    step: Array
+    accepted: Array
+
+
+def _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options: Options) -> Best:
+    """Steps 3-5 with one start per attitude (the default: `refine=1`, the planar
+    partner on): the linear method from the best root (column 0 of `R0`, `t0`), from the
+    best distinct root of the other attitude (column 1, `started` only for a flat model;
+    run only in a block that has one) and from the planar partner of the accepted answer
+    (only in a block where one is flat). The three are rounds of one loop around one
+    linear kernel, so that the program holds the kernel once, not three times (each copy
+    is about a third of the first rung's program: its compilation and its loading from
+    disk). The same answers as `_best_block`'s general steps."""
+    dtype = obs.camera.dtype
+    big = jnp.finfo(dtype).max
+    centre, normal, flat_model = plane
+    ok_status = jnp.int32(Status.OK)
+
+    def choose(columns) -> _Chosen:
+        R1, t1, lin_error, lin_status, lin_step = columns
+        converged = started & (lin_status == ok_status)
+        error = jnp.where(converged, lin_error, big)
+        thr = threshold(obs, jnp.min(error, axis=-1), options)
+        k = jnp.argmin(error, axis=-1)[:, None]
+        got = [
+            a[:, 0] for a in take_along([*R1, *t1, lin_error, converged, pick, lin_step], k, axis=1)
+        ]
+        R1, t1, error, converged = Mat3(*got[:9]), Vec3(*got[9:12]), got[12], got[13]
+        return _Chosen(R1, t1, error, converged, got[14], got[15], accepts(converged, error, thr))
+
+    def body(state):
+        j, columns, chosen, partner = state
+        Rp, tp, finite = planar_partner_batch(obs.camera, chosen.R, chosen.t, centre, normal)
+
+        def start(a, p):  # round 0: column 0, round 1: column 1, round 2: the partner
+            return jnp.where(j == 0, a[:, 0], jnp.where(j == 1, a[:, 1], p))
+
+        R, t, error, step, status = linear_kernel(
+            Mat3(*map(start, R0, Rp)), Vec3(*map(start, t0, tp)), m, options.linear_iterations
+        )
+
+        def put(old, new):  # round 0 fills both columns (the second: when it never runs)
+            return jnp.stack(
+                [jnp.where(j == 0, new, old[:, 0]), jnp.where(j <= 1, new, old[:, 1])], axis=1
+            )
+
+        new = (*R, *t, error, status, step)
+        R1, t1, lin_error, lin_status, lin_step = columns
+        old = (*R1, *t1, lin_error, lin_status, lin_step)
+        got = [put(o, n) for o, n in zip(old, new, strict=True)]
+        columns = (Mat3(*got[:9]), Vec3(*got[9:12]), got[12], got[13], got[14])
+        found = (*R, *t, error, step, finite & (status == ok_status))
+        partner = tuple(jnp.where(j == 2, n, o) for n, o in zip(found, partner, strict=True))
+        return j + 1, columns, choose(columns), partner
+
+    def more(state):
+        j, _, chosen, _ = state
+        partner = jnp.any(flat_model & chosen.accepted)
+        return (j == 0) | ((j == 1) & jnp.any(flat_model)) | ((j == 2) & partner)
+
+    first0 = [a[:, 0] for a in (*R0, *t0)]
+    none = jnp.full(started.shape[:1], big, dtype)
+    no = jnp.zeros(started.shape[:1], bool)
+    columns = (
+        R0,
+        t0,
+        jnp.full(started.shape, big, dtype),
+        jnp.zeros(started.shape, jnp.int32),
+        jnp.full(started.shape, big, dtype),
+    )
+    chosen = _Chosen(Mat3(*first0[:9]), Vec3(*first0[9:]), none, no, pick[:, 0], none, no)
+    partner = (*first0, none, none, no)
+    _, columns, chosen, partner = jax.lax.while_loop(
+        more, body, (jnp.int32(0), columns, chosen, partner)
+    )
+
+    # 5. the partner kept where it converges to a lower error
+    error, step, accepted = chosen.error, chosen.step, chosen.accepted
+    better = flat_model & accepted & partner[14] & (partner[12] < error)
+    R = Mat3(*(jnp.where(better, p, a) for p, a in zip(partner[:9], chosen.R, strict=True)))
+    t = Vec3(*(jnp.where(better, p, a) for p, a in zip(partner[9:12], chosen.t, strict=True)))
+    error = jnp.where(better, partner[12], error)
+    step = jnp.where(better, partner[13], step)
+    pose = Pose(mat_to_array(R), vec_to_array(t))
+    lin_status = columns[3]
+    first = jnp.where(started[:, 0], lin_status[:, 0], Status.NO_SOLUTION)
+    return _best(
+        pose,
+        error,
+        accepted,
+        Status.ACCEPTED_LINEAR,
+        chosen.converged,
+        first,
+        triplets,
+        chosen.root,
+        step,
     )
 
 
