@@ -179,8 +179,16 @@ def _prepare_runtime() -> None:
     that uses them (which would crash). jaxlib's own initialisation does it (0.3 s);
     should that entry point move, lowering a tiny solve does it too (1-2 s)."""
     global _RUNTIME_READY
-    if _RUNTIME_READY:
-        return
+    with _RUNTIME_LOCK:
+        if not _RUNTIME_READY:
+            _initialise_runtime()
+            _RUNTIME_READY = True
+
+
+_RUNTIME_LOCK = threading.Lock()
+
+
+def _initialise_runtime() -> None:
     try:
         from jaxlib import lapack
 
@@ -189,7 +197,6 @@ def _prepare_runtime() -> None:
         import jax.numpy as jnp
 
         jax.jit(jnp.linalg.solve).lower(jnp.eye(2), jnp.ones(2))
-    _RUNTIME_READY = True
 
 
 def _signature(args) -> tuple:
@@ -201,6 +208,85 @@ def _signature(args) -> tuple:
 
 def _array(a):
     return a if hasattr(a, "dtype") else np.asarray(a)
+
+
+def _read_program(path: Path) -> tuple[bytes, Any] | None:
+    """The key and the loaded executable of the program file `path`, or `None` (no such
+    file, or a broken or foreign one: compiled again and replaced by its `Program`)."""
+    from jax.experimental.serialize_executable import deserialize_and_load
+
+    try:
+        data = path.read_bytes()
+        if not data.startswith(_MAGIC):
+            return None
+        stored_key, lapack, payload, in_tree, out_tree = pickle.loads(data[len(_MAGIC) :])
+        if lapack:
+            _prepare_runtime()
+        return stored_key, deserialize_and_load(payload, in_tree, out_tree)
+    except Exception:
+        return None
+
+
+# ------------------------------------------------- a command's programs, loaded ahead
+
+#: The program files this process loaded or compiled, in order (`remember`).
+_USED: list[Path] = []
+#: Where each tag's use began in `_USED` (its `prefetch`).
+_SINCE: dict[str, int] = {}
+#: Program files being loaded by `prefetch`: path -> future of `_read_program`'s result.
+_PREFETCHED: dict[Path, Any] = {}
+
+
+def prefetch(tag: str) -> None:
+    """Start loading, in a background thread, the programs that the last process of
+    `tag` (a command, e.g. `"recognize"`) used (`remember`), so that loading them (XLA's
+    own work, which leaves Python free) overlaps what the process does before it needs
+    them (reading and preparing its inputs, detecting an image's primitives). A
+    `Program` that needs one of them waits for it instead of loading it again; one
+    not needed is loaded for nothing, off the main thread. Nothing when the disk cache
+    is off or `tag` has no list yet."""
+    from concurrent.futures import Future
+
+    _SINCE[tag] = len(_USED)
+    folder = _folder()
+    if folder is None:
+        return
+    try:
+        names = (folder / f"used-{tag}.txt").read_text().split()
+    except OSError:
+        return
+    # (not those this process has already used, nor those under way)
+    used = set(_USED)
+    paths = [folder / name for name in names if name.endswith(".bin")]
+    paths = [p for p in paths if p not in used and p not in _PREFETCHED and p.is_file()]
+    futures = {p: Future() for p in paths}
+    _PREFETCHED.update(futures)
+
+    def load() -> None:
+        for path, future in futures.items():
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(_read_program(path))
+                except BaseException as exc:  # pragma: no cover - reported to the waiter
+                    future.set_exception(exc)
+
+    threading.Thread(target=load, name="jaxpose-prefetch", daemon=True).start()
+
+
+def remember(tag: str) -> None:
+    """Write the program files this process used since `tag`'s `prefetch` (or since it
+    started) as `tag`'s list, when it changed."""
+    folder = _folder()
+    if folder is None:
+        return
+    names = dict.fromkeys(p.name for p in _USED[_SINCE.get(tag, 0) :] if p.parent == folder)
+    if not names:
+        return
+    path = folder / f"used-{tag}.txt"
+    text = "\n".join(names) + "\n"
+    with contextlib.suppress(OSError):
+        if not path.is_file() or path.read_text() != text:
+            path.write_text(text)
 
 
 class Program:
@@ -231,22 +317,15 @@ class Program:
         return folder / f"{hashlib.sha256(key).hexdigest()[:32]}.bin"
 
     def _load(self, path: Path | None, key: bytes):
-        from jax.experimental.serialize_executable import deserialize_and_load
-
-        if path is None or not path.is_file():
+        if path is None:
             return None
-        try:
-            data = path.read_bytes()
-            if not data.startswith(_MAGIC):
-                return None
-            stored_key, lapack, payload, in_tree, out_tree = pickle.loads(data[len(_MAGIC) :])
-            if stored_key != key:
-                return None
-            if lapack:
-                _prepare_runtime()
-            return deserialize_and_load(payload, in_tree, out_tree)
-        except Exception:  # a broken or foreign file: compiled again and replaced
-            return None
+        pending = _PREFETCHED.pop(path, None)
+        if pending is not None:  # being loaded by `prefetch`: its result, when it is ours
+            loaded = pending.result()
+            if loaded is not None and loaded[0] == key:
+                return loaded[1]
+        loaded = _read_program(path)
+        return loaded[1] if loaded is not None and loaded[0] == key else None
 
     def _store(self, path: Path | None, key: bytes, compiled) -> None:
         from jax.experimental.serialize_executable import serialize
@@ -280,6 +359,8 @@ class Program:
             if exe is not None:
                 return exe
             path, key = self._where(signature)
+            if path is not None:
+                _USED.append(path)
             exe = self._load(path, key)
             if exe is not None:
                 self.loaded += 1

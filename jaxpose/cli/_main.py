@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..api import _programs
 from ._bench import cmd_bench
 from ._common import CliError
 from ._point import cmd_point
@@ -22,6 +23,10 @@ from ._track import cmd_track
 from ._warmup import cmd_warmup
 
 __all__ = ["build_parser", "main"]
+
+#: The commands whose stored programs a new process starts loading at once, in the
+#: background (`jaxpose.api._programs.prefetch`: those the command's last run used).
+PREFETCHED = ("solve", "point", "recognize", "track")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -276,11 +281,17 @@ def main(argv: list[str] | None = None) -> int:
         from ..apps._bench import DEFAULT_NOISE
 
         args.noise = DEFAULT_NOISE
+    stored = args.command in PREFETCHED
+    if stored:  # its programs loaded ahead, beside the command's own first steps
+        _programs.prefetch(args.command)
     try:
-        return args.func(args)
+        code = args.func(args)
     except CliError as exc:
         print(f"jaxpose {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    if stored:
+        _programs.remember(args.command)
+    return code
 
 
 if __name__ == "__main__":  # pragma: no cover

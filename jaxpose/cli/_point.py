@@ -11,32 +11,22 @@ from ._recording import check_recording_args, make_recording, wants_recording
 __all__ = ["cmd_point"]
 
 
-def _point_run(C, M, I, pixel, R_true, t_true, faces, click_cov, robot, fallback: bool):
-    """`jaxpose point`'s computation, one stored program (`jaxpose.api._programs`:
-    compiled once, loaded by later processes): solve the bench, its pose covariance,
-    the click's point (and the true one), the robot's joints. `fallback`:
-    `Options.fallback` of the solve (`False`: the program of the best roots alone, a
-    third of the whole algorithm's compilation; `cmd_point` runs the whole one only
-    when that finds no pose)."""
-    from ..api._solve import solve
+def _point_run(C, M, image, R, t, pixel, R_true, t_true, faces, click_cov, robot):
+    """`jaxpose point`'s computation after the solve, one stored program
+    (`jaxpose.api._programs`: compiled once, loaded by later processes): the pose
+    covariance of the answer `Pose(R, t)`, the click's point (and the true one), the
+    robot's joints."""
     from ..apps._pointing import pick
     from ..apps._robot import forward_kinematics, inverse_kinematics
     from ..geometry._pose import Pose
     from ..strategy._covariance import pose_covariance
 
-    sol = solve(C, M, I, fallback=fallback)
-    cov = pose_covariance(C, M, I, sol.pose)
-    hit = pick(C, faces, sol.pose, pixel, cov.covariance, click_cov)
+    pose = Pose(R, t)
+    cov = pose_covariance(C, M, image, pose)
+    hit = pick(C, faces, pose, pixel, cov.covariance, click_cov)
     truth = pick(C, faces, Pose(R_true, t_true), pixel)
     cmd = inverse_kinematics(robot, hit.point, -hit.normal)
-    return sol, cov, hit, truth, cmd, forward_kinematics(robot, cmd.joints)
-
-
-def _point_pipeline(fallback: bool):
-    """The stored program of `_point_run`."""
-    from ..api._programs import program
-
-    return program(_point_run, fallback)
+    return cov, hit, truth, cmd, forward_kinematics(robot, cmd.joints)
 
 
 def cmd_point(args) -> int:
@@ -66,6 +56,8 @@ def cmd_point(args) -> int:
     import jax
     import numpy as np
 
+    from ..api._programs import program
+    from ..api._solve import solve
     from ..apps._pointing import PointingStatus, polyhedron_faces
     from ..apps._robot import RobotStatus, default_robot
     from ..solvers._status import Status
@@ -76,13 +68,13 @@ def cmd_point(args) -> int:
         t0 = time.perf_counter()
         f64 = (bench.camera, bench.model_points, bench.image_points, [u, v], bench.R, bench.t)
         cov = np.asarray(args.click_sigma**2 * np.eye(2))
-        inputs = (*(np.asarray(x, np.float64) for x in f64), faces, cov, robot)
-        # The best roots first; the whole mixed algorithm (its own, larger program) only
-        # when they leave the bench without a pose: the answer is `solve`'s either way.
-        out = _point_pipeline(False)(*inputs)
-        if not bool(out[0].accepted):
-            out = _point_pipeline(True)(*inputs)
-        sol, cov, hit, truth, cmd, state = jax.tree.map(np.asarray, out)
+        C, M, image, pixel, R_true, t_true = (np.asarray(x, np.float64) for x in f64)
+        # jaxpose.solve's own stored program (the one `jaxpose solve` and a plain
+        # `jp.solve` of the bench load), then this command's
+        sol = jax.tree.map(np.asarray, solve(C, M, image))
+        rest = (sol.pose.R, sol.pose.t, pixel, R_true, t_true, faces, cov, robot)
+        out = program(_point_run)(C, M, image, *rest)
+        cov, hit, truth, cmd, state = jax.tree.map(np.asarray, out)
         elapsed = time.perf_counter() - t0
 
     def mm(x) -> str:

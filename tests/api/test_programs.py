@@ -99,6 +99,44 @@ def test_programs_are_stored_loaded_and_rebuilt(monkeypatch, tmp_path):
     assert kept == [f"build-{k}" for k in range(1, _programs.KEEP_BUILDS + 1)]
 
 
+def test_a_command_s_programs_are_loaded_ahead(monkeypatch, tmp_path):
+    """`remember` lists the program files a process used under a command's name;
+    `prefetch` in a later process loads them in a background thread, and the `Program`
+    that needs one takes it from there (loaded once, not compiled, the same answers)."""
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    monkeypatch.setattr(_programs, "_USED", [])
+    monkeypatch.setattr(_programs, "_SINCE", {})
+    monkeypatch.setattr(_programs, "_PREFETCHED", {})
+    x = jnp.arange(9.0).reshape(3, 3) / 7
+    first = Program(_tiny, "tests.tiny-ahead")
+    want = first(x)
+    _programs.remember("tests-command")
+    folder = next((tmp_path / "programs").iterdir())
+    listed = (folder / "used-tests-command.txt").read_text().split()
+    assert listed == [p.name for p in folder.glob("*.bin")]
+    # as a new process would: nothing used yet, the command's programs loaded ahead
+    monkeypatch.setattr(_programs, "_USED", [])
+    _programs.prefetch("tests-command")
+    pending = dict(_programs._PREFETCHED)
+    assert [p.name for p in pending] == listed
+    again = Program(_tiny, "tests.tiny-ahead")
+    np.testing.assert_array_equal(again(x), want)
+    assert (again.compiled, again.loaded) == (0, 1)
+    assert not _programs._PREFETCHED  # taken by the program that needed it
+    assert all(f.done() for f in pending.values())
+    # a program already used in this process is not loaded again
+    _programs.prefetch("tests-command")
+    assert not _programs._PREFETCHED
+    # another program's file under the same name: its own key decides, never the file's
+    monkeypatch.setattr(_programs, "_USED", [])
+    _programs.prefetch("tests-command")
+    other = Program(_tiny, "tests.tiny-ahead-other")
+    other(x)
+    assert (other.compiled, other.loaded) == (1, 0)
+    _programs.prefetch("no-such-command")  # no list yet: nothing
+    assert not any(p.name not in listed for p in _programs._PREFETCHED)
+
+
 def test_cache_off_keeps_nothing(monkeypatch, tmp_path):
     monkeypatch.setenv(CACHE_ENV, "off")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))

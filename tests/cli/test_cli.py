@@ -150,6 +150,13 @@ def test_solve_json_and_yaml_agree_with_solve_pnp(tmp_path, capsys, problem):
         assert rc == 0, err
         assert "accepted" in out and "rotation vector" in out
         results[name] = json.loads(out_path.read_text())
+    # the command's programs listed, for its next process to load ahead (`prefetch`)
+    from jaxpose.api import _programs
+
+    folder = _programs._folder()
+    assert folder is not None
+    listed = (folder / "used-solve.txt").read_text().split()
+    assert listed and all((folder / name).is_file() for name in listed)
     for name, res in results.items():
         assert res["accepted"] and res["status"] == "OK", name
         cam = res["camera_frame"]

@@ -72,34 +72,42 @@ def test_unreachable_is_one_line(capsys, monkeypatch):
     assert "face 0 (top)" in out
 
 
-def test_the_whole_algorithm_runs_when_the_best_roots_find_no_pose(capsys, monkeypatch):
-    """`jaxpose point` runs the program of the best roots alone first; when it finds no
-    pose (here: made to say so), the whole mixed algorithm's program, whose answer is
-    printed."""
-    import jaxpose.cli._point as point_module
+def test_the_solve_is_jaxpose_solve_and_its_stored_program(capsys, monkeypatch):
+    """`jaxpose point` solves the bench with a plain `jaxpose.solve` (the stored program
+    `jaxpose solve` and the README's `jp.solve` load, with its escalation when the best
+    roots find no pose), then runs its own program on that answer: the printed point is
+    the one picked from `jaxpose.solve`'s pose."""
+    import jaxpose.api._solve as solve_module
+    from jaxpose.api import _programs
 
-    real = point_module._point_pipeline
     calls = []
+    real = solve_module.solve
 
-    def pipeline(fallback=True):
-        run = real(False)  # (the program already compiled: the same answer on the bench)
+    def solve(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
 
-        def traced(*args):
-            calls.append(fallback)
-            sol, *rest = run(*args)
-            if not fallback:
-                sol = sol._replace(accepted=np.zeros((), bool))
-            return (sol, *rest)
-
-        return traced
-
-    monkeypatch.setattr(point_module, "_point_pipeline", pipeline)
+    monkeypatch.setattr(solve_module, "solve", solve)
     uv, _ = _middle_pixel()
     rc = main(["point", "--pixel", f"{uv[0]:.3f}", f"{uv[1]:.3f}"])
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert calls == [False, True]
-    assert re.search(r"face\s*│\s*0 \(top\)", out)
+    assert calls == [{}]  # the default options: jaxpose.solve's own program
+    names = [p.name for p in _programs._PROGRAMS.values()]
+    assert any(name.startswith("jaxpose.api._solve._stored_program(") for name in names)
+    assert any(name.startswith("jaxpose.cli._point._point_run(") for name in names)
+    # the point printed is the pick from jaxpose.solve's answer
+    sol = real(BENCH.camera, BENCH.model_points, BENCH.image_points)
+    pose = jp.Pose(np.asarray(sol.pose.R), np.asarray(sol.pose.t))
+    np.testing.assert_allclose(_vector(out, r"3D point \(world\)"), _picked(uv, pose), atol=0.01)
+
+
+def _picked(uv, pose):
+    """The surface point under `uv` seen from `pose` (the bench's polyhedron)."""
+    from jaxpose.apps._pointing import pick, polyhedron_faces
+
+    hit = pick(BENCH.camera, polyhedron_faces(BENCH.model), pose, np.asarray(uv, float))
+    return np.asarray(hit.point)
 
 
 @pytest.mark.parametrize(

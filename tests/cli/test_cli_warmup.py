@@ -1,6 +1,8 @@
 """`jaxpose warmup`: the programs of `solve_pnp`, `solve` and its gradient built ahead of time,
 found the second time; bad counts refused in one line."""
 
+import re
+
 from jaxpose.api import _programs
 from jaxpose.cli._main import main
 
@@ -35,5 +37,7 @@ def test_warmup_track_adds_the_trackers_programs(capsys, monkeypatch):
     assert main(["warmup", "--points", "12"]) == 0
     assert "6 programs ready" in capsys.readouterr().out
     assert main(["warmup", "--points", "12", "--track"]) == 0
-    out = capsys.readouterr().out
-    assert "8 programs ready" in out and "6 found" in out.replace("\n", " ")
+    out = capsys.readouterr().out.replace("\n", " ")
+    # (the tracker's two may already be on disk when another test of the run built them)
+    found = re.search(r"8 programs ready \((\d+) compiled, (\d+) found\)", out)
+    assert found and int(found[2]) >= 6, out
