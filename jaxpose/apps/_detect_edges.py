@@ -23,10 +23,27 @@ from ._polyhedron import Polyhedron, seen_vertices
 __all__ = ["project_vertices", "refine_on_edges"]
 
 
-def _rotation(w: np.ndarray) -> np.ndarray:
-    import cv2
+def _rotations(w: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for rotation vectors `w` `(k, 3)`: the matrices `(k, 3, 3)`."""
+    w = np.asarray(w, np.float64)
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-12
+    axis = w / np.where(small, 1.0, theta)[:, None]
+    c, s = np.cos(theta), np.sin(theta)
+    x, y, z = axis.T
+    zero = np.zeros_like(x)
+    cross = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=1).reshape(-1, 3, 3)
+    outer = axis[:, :, None] * axis[:, None, :]
+    R = c[:, None, None] * np.eye(3) + (1 - c)[:, None, None] * outer
+    R = R + s[:, None, None] * cross
+    return np.where(small[:, None, None], np.eye(3), R)
 
-    return cv2.Rodrigues(np.asarray(w, np.float64).reshape(3, 1))[0]
+
+def _project_poses(K, R, t, x) -> np.ndarray:
+    """`project_vertices` at `k` poses at once: `R` `(k, 3, 3)`, `t` `(k, 3)`, `x`
+    `(n, 3)`; pixels `(k, n, 2)`."""
+    uv = (np.einsum("kij,nj->kni", R, x) + t[:, None, :]) @ K.T
+    return uv[..., :2] / np.where(np.abs(uv[..., 2:]) > 1e-12, uv[..., 2:], 1e-12)
 
 
 def project_vertices(K, R, t, x) -> np.ndarray:
@@ -102,31 +119,33 @@ def refine_on_edges(
         which = np.array([edges[e] for e, _ in pairs])
         points = np.array([q for _, q in pairs])
 
-        def residuals(p, R0=R, t0=t, which=which, points=points):
-            Rp, tp = _rotation(p[:3]) @ R0, t0 + p[3:]
-            a = project_vertices(K, Rp, tp, verts[which[:, 0]])
-            b = project_vertices(K, Rp, tp, verts[which[:, 1]])
+        def residuals(P, R0=R, t0=t, which=which, points=points):
+            """The residuals `(k, m)` at the parameters `P` `(k, 6)`, all at once."""
+            Rp, tp = _rotations(P[:, :3]) @ R0, t0 + P[:, 3:]
+            a = _project_poses(K, Rp, tp, verts[which[:, 0]])
+            b = _project_poses(K, Rp, tp, verts[which[:, 1]])
             axis = b - a
-            axis = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-            normal = np.column_stack([-axis[:, 1], axis[:, 0]])
-            line = np.sum((points - a) * normal, axis=1)
-            corner = (project_vertices(K, Rp, tp, verts[vertices]) - pixels).ravel()
-            return np.concatenate([line, corner])
+            axis = axis / np.maximum(np.linalg.norm(axis, axis=2, keepdims=True), 1e-12)
+            normal = np.stack([-axis[..., 1], axis[..., 0]], axis=2)
+            line = np.sum((points - a) * normal, axis=2)
+            corner = (_project_poses(K, Rp, tp, verts[vertices]) - pixels).reshape(len(P), -1)
+            return np.concatenate([line, corner], axis=1)
 
         p = np.zeros(6)
         h = np.array([1e-6] * 3 + [1e-6 * max(float(np.linalg.norm(t)), 1.0)] * 3)
+        # the point and its 12 central-difference neighbours, evaluated together
+        offsets = np.concatenate([np.zeros((1, 6)), np.diag(h), -np.diag(h)])
         for _ in range(steps):
-            f = residuals(p)
-            J = np.empty((len(f), 6))
-            for k in range(6):
-                e = np.zeros(6)
-                e[k] = h[k]
-                J[:, k] = (residuals(p + e) - residuals(p - e)) / (2 * h[k])
+            F = residuals(p + offsets)
+            f = F[0]
+            J = ((F[1:7] - F[7:13]) / (2 * h[:, None])).T
             dp = np.linalg.lstsq(J, -f, rcond=None)[0]
-            if not np.all(np.isfinite(dp)) or np.sum(residuals(p + dp) ** 2) >= np.sum(f**2):
+            if not np.all(np.isfinite(dp)):
+                break
+            if np.sum(residuals((p + dp)[None])[0] ** 2) >= np.sum(f**2):
                 break
             p = p + dp
-        R_new, t_new = _rotation(p[:3]) @ R, t + p[3:]
+        R_new, t_new = _rotations(p[None, :3])[0] @ R, t + p[3:]
         if not np.all(verts @ R_new[2] + t_new[2] > 0):
             break
         R, t = R_new, t_new

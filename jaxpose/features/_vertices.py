@@ -280,14 +280,19 @@ def vertex_links(
     nrm = np.column_stack([-u[:, 1], u[:, 0]])
     d = segment_directions(ends)
     parallel = np.abs(u @ d.T) >= math.cos(math.radians(angle))  # (P, S)
-    rel0 = ends[None, :, 0] - P[a][:, None]  # (P, S, 2)
-    rel1 = ends[None, :, 1] - P[a][:, None]
-    s0 = np.einsum("psk,pk->ps", rel0, u)
-    s1 = np.einsum("psk,pk->ps", rel1, u)
-    h0 = np.einsum("psk,pk->ps", rel0, nrm)
-    h1 = np.einsum("psk,pk->ps", rel1, nrm)
-    lo = np.clip(np.minimum(s0, s1), 0, L[:, None])
-    hi = np.clip(np.maximum(s0, s1), 0, L[:, None])
+    # the rest only for the (pair, segment) entries that are parallel (a few in a hundred)
+    p, k = np.nonzero(parallel)
+    if len(p) == 0:
+        return links
+    origin, u, nrm, L_p = P[a[p]], u[p], nrm[p], L[p]
+    rel0 = ends[k, 0] - origin
+    rel1 = ends[k, 1] - origin
+    s0 = rel0[:, 0] * u[:, 0] + rel0[:, 1] * u[:, 1]
+    s1 = rel1[:, 0] * u[:, 0] + rel1[:, 1] * u[:, 1]
+    h0 = rel0[:, 0] * nrm[:, 0] + rel0[:, 1] * nrm[:, 1]
+    h1 = rel1[:, 0] * nrm[:, 0] + rel1[:, 1] * nrm[:, 1]
+    lo = np.clip(np.minimum(s0, s1), 0, L_p)
+    hi = np.clip(np.maximum(s0, s1), 0, L_p)
     span = s1 - s0
     safe = np.where(np.abs(span) > 1e-9, span, 1.0)
 
@@ -297,22 +302,26 @@ def vertex_links(
     slack = _slack(vertices, segments, distance)
 
     def allowed(s):
-        w = s / L[:, None]
-        return distance + slack[a][:, None] * (1 - w) + slack[b][:, None] * w
+        w = s / L_p
+        return distance + slack[a[p]] * (1 - w) + slack[b[p]] * w
 
     near = (np.abs(offset(lo)) <= allowed(lo)) & (np.abs(offset(hi)) <= allowed(hi))
-    use = parallel & near & (hi > lo)
-    for p in np.flatnonzero(np.any(use, axis=1)):
-        k = np.flatnonzero(use[p])
-        order = np.argsort(lo[p, k])
-        start, stop = lo[p, k][order], hi[p, k][order]
+    use = near & (hi > lo)
+    p, lo, hi = p[use], lo[use], hi[use]
+    order = np.lexsort((lo, p))  # by pair, then by start along it
+    p, lo, hi = p[order], lo[order], hi[order]
+    bounds = np.flatnonzero(np.diff(p)) + 1
+    for rows in np.split(np.arange(len(p)), bounds):
+        if len(rows) == 0:
+            continue
         covered, reach = 0.0, 0.0
-        for s, e in zip(start, stop, strict=True):
+        for s, e in zip(lo[rows].tolist(), hi[rows].tolist(), strict=True):
             if e > reach:
                 covered += e - max(s, reach)
                 reach = e
-        if covered >= coverage * L[p]:
-            links[a[p], b[p]] = links[b[p], a[p]] = True
+        q = p[rows[0]]
+        if covered >= coverage * L[q]:
+            links[a[q], b[q]] = links[b[q], a[q]] = True
     return links
 
 
