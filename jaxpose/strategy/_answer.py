@@ -8,6 +8,7 @@ Eq. 8, run only for the answers that are not there yet.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -54,35 +55,36 @@ def finish_linear_batch(obs: Observations, found: Answer, steps: int = 2) -> Ans
     For callers that take no derivative (`Options.derivative=False`): batch-first, no
     Hessian.
 
-    The cost follows the answers that need it: none, nothing runs; up to
-    `fallback_slots(B)` of them, they alone are gathered and finished; more, the whole
-    batch is (on ordinary problems the first rung's five linear steps leave about one
-    answer in five hundred unsettled)."""
+    The cost follows the answers that need it: none, nothing runs; otherwise they are
+    gathered `fallback_slots(B)` at a time and finished, pass after pass, until none is
+    left (on ordinary problems the first rung's five linear steps leave about one answer
+    in five hundred unsettled: one pass). One linear kernel in the program, whatever
+    `B`."""
     B = found.error.shape[0]
     need = ~(found.step <= SETTLED_STEP)  # (a NaN step: not settled)
     F = fallback_slots(B)
+    if F >= B:
+        every = functools.partial(_finish_linear, obs, steps=steps)
+        return jax.lax.cond(jnp.any(need), every, lambda f: f, found)
 
-    def every(found):
-        return _finish_linear(obs, found, steps)
+    def pending(carry):
+        return jnp.any(carry[0])
 
-    def some(found):
+    def one_pass(carry):
+        need, found = carry
         _, idx = jax.lax.top_k(need.astype(jnp.int32), F)
+        take = need[idx]
         part = _finish_linear(
             jax.tree.map(lambda x: x[idx], obs), jax.tree.map(lambda x: x[idx], found), steps
         )
-        take = need[idx]
 
         def scatter(old, new):
             mask = take.reshape((F,) + (1,) * (new.ndim - 1))
             return old.at[idx].set(jnp.where(mask, new, old[idx]))
 
-        return jax.tree.map(scatter, found, part)
+        return need.at[idx].set(False), jax.tree.map(scatter, found, part)
 
-    count = jnp.sum(need)
-    if F >= B:
-        return jax.lax.cond(count > 0, every, lambda f: f, found)
-    branch = jnp.where(count == 0, 0, jnp.where(count <= F, 1, 2))
-    return jax.lax.switch(branch, [lambda f: f, some, every], found)
+    return jax.lax.while_loop(pending, one_pass, (need, found))[1]
 
 
 def _finish_linear(obs: Observations, found: Answer, steps: int) -> Answer:
