@@ -6,14 +6,14 @@ robust scoring by consensus, pose covariance, the implicit derivative of the ans
 from ._accept import accepts as accepts
 from ._accept import threshold as threshold
 from ._best import Answer as Answer
-from ._best import Best as Best
 from ._best import answer as answer
 from ._best import answer_batch as answer_batch
-from ._best import best_of_roots as best_of_roots
-from ._best import best_of_roots_batch as best_of_roots_batch
 from ._best import escalation as escalation
 from ._best import rung_applies as rung_applies
 from ._best import spread_matches as spread_matches
+from ._best_roots import Best as Best
+from ._best_roots import best_of_roots as best_of_roots
+from ._best_roots import best_of_roots_batch as best_of_roots_batch
 from ._covariance import PoseCovariance as PoseCovariance
 from ._covariance import pose_covariance as pose_covariance
 from ._methods import SINGLE_METHODS as SINGLE_METHODS

@@ -33,7 +33,8 @@ from ..solvers._chart import chart_at, chart_residuals
 from ..solvers._components import Mat3, mat_to_array, take_along
 from ..solvers._kernel_linear import matches_from_observations, pixel_error_kernel
 from ..solvers._linalg import positive_definite_solve
-from ._best import _roots, answer_triplets, distinct_best
+from ._best import answer_triplets
+from ._best_roots import _roots, distinct_best
 from ._options import Options
 from ._pipeline import Solution, solve_problems
 from ._planar import planar_partner, planar_poses

@@ -10,16 +10,9 @@ import numpy as np
 
 import jaxpose as jp
 from jaxpose.solvers._components import mat_from_array
-from jaxpose.strategy._best import (
-    DISTINCT_ANGLE,
-    answer_triplets,
-    best_of_roots,
-    distinct_best,
-    escalation,
-    fallback_slots,
-    rung_applies,
-    spread_matches,
-)
+from jaxpose.strategy._answer import fallback_slots
+from jaxpose.strategy._best import answer_triplets, escalation, rung_applies, spread_matches
+from jaxpose.strategy._best_roots import DISTINCT_ANGLE, best_of_roots, distinct_best
 
 # The helpers the tests call outside the solvers, jitted: one program each rather than
 # one per eager operation.
