@@ -210,9 +210,10 @@ def _array(a):
     return a if hasattr(a, "dtype") else np.asarray(a)
 
 
-def _read_program(path: Path) -> tuple[bytes, Any] | None:
+def _read_program(path: Path, key: bytes | None = None) -> tuple[bytes, Any] | None:
     """The key and the loaded executable of the program file `path`, or `None` (no such
-    file, or a broken or foreign one: compiled again and replaced by its `Program`)."""
+    file, a broken or foreign one, or one whose key is not `key` when given: compiled
+    again and replaced by its `Program`)."""
     from jax.experimental.serialize_executable import deserialize_and_load
 
     try:
@@ -220,6 +221,8 @@ def _read_program(path: Path) -> tuple[bytes, Any] | None:
         if not data.startswith(_MAGIC):
             return None
         stored_key, lapack, payload, in_tree, out_tree = pickle.loads(data[len(_MAGIC) :])
+        if key is not None and stored_key != key:
+            return None
         if lapack:
             _prepare_runtime()
         return stored_key, deserialize_and_load(payload, in_tree, out_tree)
@@ -324,8 +327,8 @@ class Program:
             loaded = pending.result()
             if loaded is not None and loaded[0] == key:
                 return loaded[1]
-        loaded = _read_program(path)
-        return loaded[1] if loaded is not None and loaded[0] == key else None
+        loaded = _read_program(path, key)
+        return None if loaded is None else loaded[1]
 
     def _store(self, path: Path | None, key: bytes, compiled) -> None:
         from jax.experimental.serialize_executable import serialize
