@@ -49,7 +49,7 @@ from ..strategy import (
     with_values,
 )
 from ._batch import run_batched
-from ._programs import bucket_points, program
+from ._programs import bucket_points, program, stored_jit
 from ._solve import solve, solve_many
 
 __all__ = ["solve_pnp", "solve_pnp_batch", "solve_pnp_ransac"]
@@ -480,7 +480,8 @@ def solve_pnp_batch(
 RANSAC_MIN_MATCHES = 4
 
 
-@functools.partial(jax.jit, static_argnames=("options",))
+# A stored program (compiled once per number of matches, loaded by later processes).
+@stored_jit(static_argnames=("options",))
 def _robust_opencv(K, obj, img, threshold, min_inliers, triplets, options: RobustOptions):
     res = robust(
         camera_matrix(K),

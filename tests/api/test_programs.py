@@ -339,3 +339,27 @@ def test_the_programs_compiler_options_give_the_default_answers():
         )
     assert ours[0] == 1
     np.testing.assert_allclose(ours, default, rtol=1e-10, atol=1e-12)
+
+
+def test_solve_pnp_ransac_runs_a_stored_program():
+    """`solve_pnp_ransac` runs a stored program (one per number of matches, loaded by a
+    new process instead of traced and compiled again); its threshold and inlier count
+    are the program's values: changing them compiles nothing."""
+    rng = np.random.default_rng(11)
+    obj, img = _problem(14, seed=11)
+    img[:3] += rng.uniform(-60, 60, (3, 2))  # three wrong matches
+    ok, _, _, inliers = jp.solve_pnp_ransac(obj, img, K)
+    assert ok and len(inliers) == 11
+
+    def ours():
+        return [
+            p
+            for (fn, _), p in _programs._KEYWORD_PROGRAMS.items()
+            if fn.__name__ == "_robust_opencv"
+        ]
+
+    assert ours(), "no stored program ran"
+    compiled = sum(p.compiled for p in ours())
+    ok, _, _, inliers = jp.solve_pnp_ransac(obj, img, K, reprojection_error=3.0, min_inliers=5)
+    assert ok and len(inliers) == 11
+    assert sum(p.compiled for p in ours()) == compiled
