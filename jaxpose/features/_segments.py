@@ -264,21 +264,25 @@ def chain_segments(
     d = segment_directions(ends)
     length = segment_lengths(ends)
     mid = ends.mean(axis=1)
-    cos = np.abs(d @ d.T)
-    parallel = cos >= math.cos(math.radians(angle))
+    parallel = np.abs(d @ d.T) >= math.cos(math.radians(angle))
     normal = np.column_stack([-d[:, 1], d[:, 0]])
-    # dist[i, j, e]: distance of end e of segment j to the line of segment i.
-    rel = ends[None, :, :, :] - mid[:, None, None, :]
-    dist = np.abs(np.einsum("ijek,ik->ije", rel, normal))
-    close = np.max(dist, axis=2) <= offset
-    along = np.einsum("ijek,ik->ije", rel, d)
-    lo, hi = np.min(along, axis=2), np.max(along, axis=2)
-    half = length[:, None] / 2
-    separation = np.maximum(lo - half, -half - hi)  # gap along line i (< 0: overlap)
-    near = separation <= gap
-    joined = parallel & close & close.T & near & near.T
-    np.fill_diagonal(joined, False)
-    pairs = np.argwhere(np.triu(joined))
+    # the rest only for the parallel pairs (a few in a hundred), `i < j`
+    i, j = np.nonzero(np.triu(parallel, 1))
+
+    def along_line(a, b):
+        """Whether both end points of segments `b` lie within `offset` of the lines of
+        segments `a`, and the gap between them along those lines is at most `gap` (an
+        overlap is no gap)."""
+        rel = ends[b] - mid[a][:, None, :]  # (P, 2 ends, 2)
+        dist = np.abs(rel[..., 0] * normal[a, None, 0] + rel[..., 1] * normal[a, None, 1])
+        along = rel[..., 0] * d[a, None, 0] + rel[..., 1] * d[a, None, 1]
+        lo, hi = np.min(along, axis=1), np.max(along, axis=1)
+        half = length[a] / 2
+        separation = np.maximum(lo - half, -half - hi)  # (< 0: overlap)
+        return (np.max(dist, axis=1) <= offset) & (separation <= gap)
+
+    joined = along_line(i, j) & along_line(j, i)
+    pairs = np.column_stack([i[joined], j[joined]])
     if len(pairs) == 0:
         return segments
     labels = _components(n, pairs)
