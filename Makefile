@@ -30,11 +30,16 @@ demo: $(STAMP)
 
 # pyright and the strict docs build (then its layout check) run beside the test suite at
 # the lowest priority: they take a core only when a test worker leaves one idle. Their
-# reports are printed after the tests; any of the three failing fails the target.
+# reports are printed after the tests; any of the three failing fails the target. The
+# notebooks the docs build executes share the tests' program cache (and their XLA
+# options, which the cache's folder depends on): a program one of them compiled, the
+# other loads.
+TEST_CACHE := JAXPOSE_CACHE_DIR=$(CURDIR)/.pytest_cache/jaxpose \
+	XLA_FLAGS="--xla_force_host_platform_device_count=1 --xla_cpu_use_fusion_emitters=false"
 test: $(STAMP)
 	$(BIN)/ruff check .
 	nice -n 19 $(BIN)/pyright > .pyright.log 2>&1 & pyright=$$!; \
-	nice -n 19 sh -c '$(MKDOCS) build --strict --site-dir site && $(LAYOUT_CHECK)' \
+	$(TEST_CACHE) nice -n 19 sh -c '$(MKDOCS) build --strict --site-dir site && $(LAYOUT_CHECK)' \
 		> .mkdocs.log 2>&1 & docs=$$!; \
 	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=40; \
 	status=$$?; wait $$pyright || status=1; wait $$docs || status=1; \
