@@ -31,7 +31,16 @@ one condition (`CONDITIONS`):
 
 Starts (`STARTS`): `given` (the true first pose) and `recognition` (no first pose:
 `initial_pose=None`, the first pose found by `reinit` on the first frame). Every run
-has `recognition_reinit` (recognition from the mesh alone) as `reinit`.
+has `recognition_reinit` as `reinit` (`reinit_for`): recognition from the mesh alone,
+except for the `recognition` start of `box_photo`, which has the box's textured model
+(OpenCV's tutorial ORB model, `cookies_ORB.yml.gz`, made from the photograph its
+textures come from) as `jaxpose track --textured` has it: its keypoints first (a pose
+with enough inliers is taken), the mesh after; on the first frame and after every lost
+one. Recognition from the mesh alone cannot tell the box from its half-turned twins
+(they show the same edges), the keypoints can. `box_flat` and the prism have no
+texture: the mesh alone. (Only the initial and re-initial poses come from the
+keypoints: as with `jaxpose track --textured`, the tracker's own measurements are edges
+and KLT points, `track`'s `textured` is not passed.)
 
 Per run: `seen_on_target` (the fraction of the frames where the object is seen, with a
 pose within 0.5 degree and 0.5% of the distance), `hidden_tracked` (frames reported
@@ -44,7 +53,8 @@ every seed (seen on target >= 95%, no hidden frame tracked, back within 5 frames
     python -m benchmarks.track_rendered [--quick] [--seeds 3] [--frames 24]
         [--out benchmarks/results/track_rendered.json]
 
-`--quick`: one seed (saved as `track_rendered_quick.json`).
+`--quick`: one seed (saved as `track_rendered_quick.json`). Each run and cell records
+its `recognition` (`"mesh"` or `"textured"`).
 """
 
 from __future__ import annotations
@@ -79,8 +89,10 @@ class _Object:
             read_ply,
             sample_path,
         )
+        from jaxpose.features import read_textured_model
 
         self.name = name
+        self.textured = None  # the object's textured model (keypoints), if it has one
         if name == "prism":
             bench = default_bench()
             self.mesh = bench.model
@@ -106,6 +118,9 @@ class _Object:
                 textures = face_textures(photo, self.geo, K_photo, None, R_photo, t_photo,
                                          texture_scale=0.05)  # fmt: skip
                 self.style = dict(texture=textures, texture_scale=0.05, ambient=0.4)
+                self.textured = read_textured_model(
+                    sample_path("opencv_pose_box", "cookies_ORB.yml.gz")
+                )
         self.centre = self.mesh.vertices.mean(axis=0)
         self.distance = float(np.linalg.norm(self.R0 @ self.centre + self.t0))
         # About 30 px of motion on the image, whatever the camera and distance.
@@ -198,6 +213,19 @@ def sequence(obj: _Object, condition: str, frames: int, seed: int, rotation: flo
     return images, Rs[reach::steps][:keep], ts[reach::steps][:keep], hidden
 
 
+def reinit_for(obj: _Object, start: str):
+    """`(reinit, recognition)`: the `recognition_reinit` of a run of `obj` from `start`
+    and what it recognises from (`"textured"`: the textured model's keypoints, then the
+    mesh; `"mesh"`: the mesh alone); see the module docstring."""
+    from jaxpose.apps import recognition_reinit
+
+    if start not in STARTS:
+        raise ValueError(f"start must be one of {STARTS}, got {start!r}")
+    textured = obj.textured if start == "recognition" else None
+    reinit = recognition_reinit(obj.mesh, obj.K, textured=textured)
+    return reinit, "mesh" if textured is None else "textured"
+
+
 def errors(results, Rs, ts, centre, turns=()) -> tuple[np.ndarray, np.ndarray]:
     """Per frame: the rotation error (degrees) and the error of the model's centre (its
     vertex centroid) as a fraction of its distance; with `turns` (the model's
@@ -261,6 +289,7 @@ def _cell(runs: list[dict]) -> dict:
         "object": runs[0]["object"],
         "condition": runs[0]["condition"],
         "start": runs[0]["start"],
+        "recognition": runs[0]["recognition"],
         "seeds": len(runs),
         "min_seen_on_target": seen,
         "min_seen_on_target_up_to_symmetry": up_to,
@@ -277,32 +306,37 @@ def _cell(runs: list[dict]) -> dict:
 def run(seeds: int = 3, frames: int = 24, objects=OBJECTS, conditions=CONDITIONS,
         starts=STARTS, log=print, options=None) -> dict:  # fmt: skip
     """The matrix described in the module docstring; returns the figures as a dict."""
-    from jaxpose.apps import recognition_reinit, track
+    from jaxpose.apps import track
     from jaxpose.apps._track import _symmetries
     from jaxpose.cli._common import setup_jax
 
     setup_jax(True)
-    runs, compile_s = [], {}
+    runs, compile_s, textured_s = [], {}, {}
     for name in objects:
         obj = _Object(name)
-        reinit = recognition_reinit(obj.mesh, obj.K)
+        reinits = {start: reinit_for(obj, start) for start in starts}
         turns = [S for S, _ in _symmetries(obj.geo)]  # (about the vertex centroid)
-        began = time.perf_counter()
         images, Rs, ts, _ = sequence(obj, "noise", 4, 1)
-        reinit(images[0], 0)  # recognition's programs loaded (or compiled)
+        began = time.perf_counter()
+        reinit_for(obj, "given")[0](images[0], 0)  # recognition's programs loaded (or compiled)
         compile_s[name] = time.perf_counter() - began
+        if obj.textured is not None and "recognition" in starts:
+            began = time.perf_counter()
+            reinits["recognition"][0](images[0], 0)  # the keypoint path's programs (the
+            textured_s[name] = time.perf_counter() - began  # robust solve's, per match count)
         list(track(images, obj.geo, obj.K, None, (Rs[0], ts[0]), options=options))  # same
         for condition in conditions:
             for seed in range(1, seeds + 1):
                 images, Rs, ts, hidden = sequence(obj, condition, frames, seed)
                 for start in starts:
                     first = (Rs[0], ts[0]) if start == "given" else None
+                    reinit, recognition = reinits[start]
                     began = time.perf_counter()
                     results = list(track(images, obj.geo, obj.K, None, first, reinit=reinit,
                                          options=options))  # fmt: skip
                     elapsed = time.perf_counter() - began
                     r = {"object": name, "condition": condition, "start": start,
-                         "seed": seed, "seconds": elapsed,
+                         "recognition": recognition, "seed": seed, "seconds": elapsed,
                          "ms_per_frame": 1000 * elapsed / frames}  # fmt: skip
                     r |= measure(results, Rs, ts, hidden, obj.centre, turns)
                     runs.append(r)
@@ -328,7 +362,8 @@ def run(seeds: int = 3, frames: int = 24, objects=OBJECTS, conditions=CONDITIONS
             "seen_on_target": SEEN_TARGET,
             "back_after": BACK_TARGET,
         },  # fmt: skip
-        "recognition_first_call_s": compile_s,
+        "recognition_first_call_s": compile_s,  # from the mesh
+        "textured_recognition_first_call_s": textured_s,  # keypoints (their first frame)
         "cells": cells,
         "runs": runs,
     }

@@ -119,6 +119,26 @@ def track_rendered(results: Path) -> str:
         f"hidden (target 0); back after: the most frames from the reappearance to the "
         f"first frame with a pose (target <= {t['back_after']}, back within "
         f"{t['back_after'] + 1} frames); ms/frame: median over the runs, recognition "
-        f"included. Targets: all three hold on every trajectory.*"
+        f"included. Targets: all three hold on every trajectory.{_recognised(d)}*"
     )
     return out + "\n\n" + caption(d, name, command="python -m benchmarks.track_rendered")
+
+
+def _recognised(d: dict) -> str:
+    """What each object's runs from recognition recognised it from (the cells'
+    `recognition`, absent from results saved before it was recorded)."""
+    by: dict[str, list[str]] = {}
+    for c in d["cells"]:
+        if c["start"] == "recognition" and "recognition" in c:
+            label = OBJECTS.get(c["object"], c["object"])
+            names = by.setdefault(c["recognition"], [])
+            if label not in names:
+                names.append(label)
+    if not by:
+        return ""
+    said = {"textured": "from the textured model's keypoints (then the mesh)",
+            "mesh": "from the mesh alone"}  # fmt: skip
+    parts = [f"{', '.join(names)} {said.get(kind, kind)}" for kind, names in by.items()]
+    return (" The runs from recognition recognise the object (on the first frame and after "
+            f"a lost one): {'; '.join(parts)}; the runs from the given pose re-initialise "
+            "from the mesh alone.")  # fmt: skip
