@@ -482,11 +482,12 @@ RANSAC_MIN_MATCHES = 4
 
 # A stored program (compiled once per number of matches, loaded by later processes).
 @stored_jit(static_argnames=("options",))
-def _robust_opencv(K, obj, img, threshold, min_inliers, triplets, options: RobustOptions):
+def _robust_opencv(K, obj, img, mask, threshold, min_inliers, triplets, options: RobustOptions):
     res = robust(
         camera_matrix(K),
         obj,
         img,
+        mask,
         options=options,
         triplets=triplets,
         inlier_threshold=threshold,
@@ -562,19 +563,27 @@ def solve_pnp_ransac(
         min_inliers=RobustOptions.min_inliers,
     )
     img = undistort_pixels(img, K, dist)
+    # One program per bucket of matches and of triplets (the padding masked out, the
+    # padding triplets repeat a match: degenerate), so that a new number of matches, as a
+    # tracker's re-initialisations meet, seldom compiles anything.
+    n = obj.shape[0]
+    obj, img, mask = _pad_points(obj, img)
+    rows = 1 << (len(triplets) - 1).bit_length()
+    triplets = np.concatenate([triplets, np.zeros((rows - len(triplets), 3), triplets.dtype)])
     with jax.enable_x64(True):
         ok, rvec, tvec, inliers = _robust_opencv(
-            jnp.asarray(K, jnp.float64),
-            jnp.asarray(obj, jnp.float64),
-            jnp.asarray(img, jnp.float64),
-            jnp.asarray(threshold, jnp.float64),
-            jnp.asarray(options.min_inliers, jnp.int32),
-            jnp.asarray(triplets, jnp.int32),
+            np.asarray(K, np.float64),
+            np.asarray(obj, np.float64),
+            np.asarray(img, np.float64),
+            mask,
+            np.asarray(threshold, np.float64),
+            np.asarray(options.min_inliers, np.int32),
+            np.asarray(triplets, np.int32),
             program,
         )
         ok = bool(ok)
         rvec, tvec = np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
-        inliers = np.asarray(inliers)
+        inliers = np.asarray(inliers)[:n]
     if not ok:
         return False, np.zeros((3, 1)), np.zeros((3, 1)), None
     index = np.flatnonzero(inliers).astype(np.int32).reshape(-1, 1)

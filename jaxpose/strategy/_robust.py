@@ -139,7 +139,9 @@ def robust(
 
     def candidates(ijk):
         sol = triplet_roots(obs, ijk, options, area)
-        valid = sol.valid & jnp.all(obs.mask[ijk])
+        # (a triplet that repeats a match is degenerate: padding, see solve_pnp_ransac)
+        distinct = (ijk[0] != ijk[1]) & (ijk[1] != ijk[2]) & (ijk[0] != ijk[2])
+        valid = sol.valid & jnp.all(obs.mask[ijk]) & distinct
         _, count, cost = jax.vmap(lambda R, t: _score(obs, Pose(R, t), thr))(sol.R, sol.t)
         return sol.R, sol.t, valid, count, cost
 

@@ -342,9 +342,10 @@ def test_the_programs_compiler_options_give_the_default_answers():
 
 
 def test_solve_pnp_ransac_runs_a_stored_program():
-    """`solve_pnp_ransac` runs a stored program (one per number of matches, loaded by a
-    new process instead of traced and compiled again); its threshold and inlier count
-    are the program's values: changing them compiles nothing."""
+    """`solve_pnp_ransac` runs a stored program (one per bucket of matches and of
+    triplets, loaded by a new process instead of traced and compiled again); its
+    threshold and inlier count are the program's values, and another number of matches
+    in the same buckets pads to the same shapes: neither compiles anything."""
     rng = np.random.default_rng(11)
     obj, img = _problem(14, seed=11)
     img[:3] += rng.uniform(-60, 60, (3, 2))  # three wrong matches
@@ -362,4 +363,7 @@ def test_solve_pnp_ransac_runs_a_stored_program():
     compiled = sum(p.compiled for p in ours())
     ok, _, _, inliers = jp.solve_pnp_ransac(obj, img, K, reprojection_error=3.0, min_inliers=5)
     assert ok and len(inliers) == 11
+    # 13 matches: 286 triplets, 14: 364, both padded to 16 matches and 512 triplets
+    ok, _, _, fewer = jp.solve_pnp_ransac(obj[:13], img[:13], K)
+    assert ok and fewer.ravel().tolist() == [i for i in inliers.ravel() if i < 13]
     assert sum(p.compiled for p in ours()) == compiled
