@@ -565,10 +565,12 @@ def solve_pnp_ransac(
     img = undistort_pixels(img, K, dist)
     # One program per bucket of matches and of triplets (the padding masked out, the
     # padding triplets repeat a match: degenerate), so that a new number of matches, as a
-    # tracker's re-initialisations meet, seldom compiles anything.
+    # tracker's re-initialisations meet, seldom compiles anything; the triplets padded by
+    # at most a third.
     n = obj.shape[0]
     obj, img, mask = _pad_points(obj, img)
-    rows = 1 << (len(triplets) - 1).bit_length()
+    rows = 1 << (len(triplets) - 1).bit_length()  # a power of two, or three quarters of one
+    rows = rows * 3 // 4 if rows * 3 // 4 >= len(triplets) else rows
     triplets = np.concatenate([triplets, np.zeros((rows - len(triplets), 3), triplets.dtype)])
     with jax.enable_x64(True):
         ok, rvec, tvec, inliers = _robust_opencv(

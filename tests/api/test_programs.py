@@ -363,7 +363,7 @@ def test_solve_pnp_ransac_runs_a_stored_program():
     compiled = sum(p.compiled for p in ours())
     ok, _, _, inliers = jp.solve_pnp_ransac(obj, img, K, reprojection_error=3.0, min_inliers=5)
     assert ok and len(inliers) == 11
-    # 13 matches: 286 triplets, 14: 364, both padded to 16 matches and 512 triplets
+    # 13 matches: 286 triplets, 14: 364, both padded to 16 matches and 384 triplets
     ok, _, _, fewer = jp.solve_pnp_ransac(obj[:13], img[:13], K)
     assert ok and fewer.ravel().tolist() == [i for i in inliers.ravel() if i < 13]
     assert sum(p.compiled for p in ours()) == compiled
