@@ -4,3 +4,4 @@
 
 from ._main import build_parser as build_parser
 from ._main import main as main
+from ._main import run as run

@@ -385,3 +385,28 @@ def test_polyhedron_with_matched_vertices_and_mask(tmp_path):
         model=tmp_path / "model.json", image=tmp_path / "mask.yaml", camera=tmp_path / "camera.yaml"
     )
     np.testing.assert_array_equal(got.mask, mask)
+
+
+def test_the_command_ends_with_its_code_and_whole_outputs(tmp_path):
+    """The `jaxpose` executable (`jaxpose.cli.run`) ends its process at once after the
+    command (no interpreter teardown): its exit code, everything it printed and wrote
+    (a recording verified by rerun) are whole."""
+    import subprocess
+
+    from helpers import verify_recording
+
+    def jaxpose(*argv):
+        code = "from jaxpose.cli import run; run()"  # (sys.argv[1:]: the arguments)
+        cmd = [sys.executable, "-c", code, *map(str, argv)]
+        return subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+
+    made = jaxpose("solve", "--write-example", "bench.json")
+    assert made.returncode == 0, made.stderr
+    out = jaxpose("solve", "bench.json", "--out", "pose.json", "--rrd", "solve.rrd")
+    assert out.returncode == 0, out.stderr
+    assert "wrote" in out.stdout and "accepted" in out.stdout
+    assert json.loads((tmp_path / "pose.json").read_text())["accepted"]
+    verify_recording(tmp_path / "solve.rrd")
+    bad = jaxpose("solve", "missing.json")
+    assert bad.returncode == 2
+    assert bad.stderr.strip() == "jaxpose solve: error: missing.json: no such file"
