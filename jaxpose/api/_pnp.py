@@ -568,7 +568,7 @@ def solve_pnp_ransac(
     # tracker's re-initialisations meet, seldom compiles anything; the triplets padded by
     # at most a third.
     n = obj.shape[0]
-    obj, img, mask = _pad_points(obj, img)
+    obj, img, mask = _pad_points(obj, np.asarray(img, np.float64))
     rows = 1 << (len(triplets) - 1).bit_length()  # a power of two, or three quarters of one
     rows = rows * 3 // 4 if rows * 3 // 4 >= len(triplets) else rows
     triplets = np.concatenate([triplets, np.zeros((rows - len(triplets), 3), triplets.dtype)])
