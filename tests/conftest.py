@@ -78,12 +78,28 @@ def _count_compile(event, duration, **kwargs):
     if event == "/jax/core/compile/backend_compile_duration":
         _COMPILES["count"] += 1
         _COMPILES["seconds"] += duration
-        name = kwargs.get("fun_name", "?")
+        name = _DETAIL.get("program") or kwargs.get("fun_name", "?")
         _DETAIL["lines"].append(f"{_DETAIL['test']}\t{name}\t{duration:.3f}")
 
 
 if os.environ.get("JAXPOSE_COMPILE_LOG"):
     jax.monitoring.register_event_duration_secs_listener(_count_compile)
+
+if os.environ.get("JAXPOSE_COMPILE_DETAIL"):
+    # A stored program's compilation is named by its file (the hash of its key), so that
+    # one built twice (by both workers, or again in a later test) shows.
+    from jaxpose.api import _programs
+
+    _compile_and_store = _programs.Program._compile_and_store
+
+    def _named_compile(self, args, path, key):
+        _DETAIL["program"] = "program:" + (path.name if path is not None else self.name[:60])
+        try:
+            return _compile_and_store(self, args, path, key)
+        finally:
+            _DETAIL["program"] = None
+
+    _programs.Program._compile_and_store = _named_compile
 
 
 @pytest.hookimpl(wrapper=True)

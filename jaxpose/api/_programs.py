@@ -241,7 +241,7 @@ _PREFETCHED: dict[Path, Any] = {}
 
 
 def prefetch(tag: str) -> None:
-    """Start loading, in a background thread, the programs that the last process of
+    """Start loading, in background threads (one a program), the programs that the last process of
     `tag` (a command, e.g. `"recognize"`) used (`remember`), so that loading them (XLA's
     own work, which leaves Python free) overlaps what the process does before it needs
     them (reading and preparing its inputs, detecting an image's primitives). A
@@ -265,15 +265,17 @@ def prefetch(tag: str) -> None:
     futures = {p: Future() for p in paths}
     _PREFETCHED.update(futures)
 
-    def load() -> None:
-        for path, future in futures.items():
-            if future.set_running_or_notify_cancel():
-                try:
-                    future.set_result(_read_program(path))
-                except BaseException as exc:  # pragma: no cover - reported to the waiter
-                    future.set_exception(exc)
+    def load(path: Path, future: Future) -> None:
+        if future.set_running_or_notify_cancel():
+            try:
+                future.set_result(_read_program(path))
+            except BaseException as exc:  # pragma: no cover - reported to the waiter
+                future.set_exception(exc)
 
-    threading.Thread(target=load, name="jaxpose-prefetch", daemon=True).start()
+    # (one thread a program: XLA loads them side by side, on the machine's cores)
+    for path, future in futures.items():
+        name = "jaxpose-prefetch"
+        threading.Thread(target=load, args=(path, future), name=name, daemon=True).start()
 
 
 def remember(tag: str) -> None:
