@@ -163,24 +163,40 @@ def _linear_starts(R: Mat3, t: Vec3, m: Matches, iterations: int):
     return R1, t1, error.reshape(B, K), status.reshape(B, K), step.reshape(B, K)
 
 
-def _mixed_starts(obs: Observations, thr, R0: Mat3, t0: Vec3, started, options: Options):
+def _mixed_starts(obs: Observations, R0: Mat3, t0: Vec3, started, options: Options):
     """The mixed algorithm's steps 2-4 (`jaxpose.strategy._mixed.job`: the linear method,
     Levenberg-Marquardt where it does not reach an accepted pose, the linear method
-    again) from the `K` starts of each problem (`(B, K)`), with the problems' thresholds
-    `thr`. Returns the poses (`Mat3`, `Vec3` of `(B, K)`), their errors, whether each is
-    accepted (a start that exists, accepted by the steps' rule) and the statuses."""
+    again) from the `K` starts of each problem (`(B, K)`), each problem's threshold
+    taken from its started runs of step 2 (the acceptance of step 4). Returns the poses
+    (`Mat3`, `Vec3` of `(B, K)`), their errors, whether each is accepted (a start that
+    exists, accepted by the steps' rule), the statuses and the statuses of step 2's
+    runs."""
     B, K = R0.xx.shape
+    big = jnp.finfo(obs.camera.dtype).max
     starts = Pose(mat_to_array(R0).reshape(B * K, 3, 3), vec_to_array(t0).reshape(B * K, 3))
     problem = jnp.repeat(jnp.arange(B), K)
     steps = jnp.full((B * K,), options.max_steps, jnp.int32)
-    pose, error, status = job(
-        obs, thr, options.linear_iterations, options.max_steps, problem, starts, steps
+
+    def thresholds(first):  # each problem's, from its started runs of step 2
+        converged = started & (first.status.reshape(B, K) == Status.OK)
+        lowest = jnp.min(jnp.where(converged, first.error.reshape(B, K), big), axis=-1)
+        return threshold(obs, lowest, options)[problem]
+
+    pose, error, status, first = job(
+        obs,
+        thresholds,
+        options.linear_iterations,
+        options.max_steps,
+        problem,
+        starts,
+        steps,
+        first_status=True,
     )
     R = Mat3(*(pose.R[:, i, j].reshape(B, K) for i in range(3) for j in range(3)))
     t = Vec3(*(pose.t[:, i].reshape(B, K) for i in range(3)))
     status = status.reshape(B, K)
     ok = started & Status.is_success(status)
-    return R, t, error.reshape(B, K), ok, status
+    return R, t, error.reshape(B, K), ok, status, first.reshape(B, K)
 
 
 def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Options) -> Best:
@@ -204,42 +220,28 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     picked = take_along([*R, *t], pick, axis=1)
     R0, t0 = Mat3(*picked[:9]), Vec3(*picked[9:])
     its = options.linear_iterations
-    mixed = options.refine_with == "mixed"
-    if two and not mixed:
-        # (the default: one linear-kernel program for both columns and the partner)
-        assert plane is not None
-        started = jnp.stack([started[:, 0], started[:, 1] & plane[2]], axis=1)
-        return _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options)
     if two:
         assert plane is not None
-        flat_model = plane[2]
-        started = jnp.stack([started[:, 0], started[:, 1] & flat_model], axis=1)
-
-        def first_only(R0: Mat3, t0: Vec3):
-            column = _linear_starts(
-                Mat3(*(a[:, :1] for a in R0)), Vec3(*(a[:, :1] for a in t0)), m, its
-            )
-            return jax.tree.map(lambda a: jnp.concatenate([a, a], axis=1), column)
-
-        R1, t1, lin_error, lin_status, lin_step = jax.lax.cond(
-            jnp.any(flat_model),
-            lambda R0, t0: _linear_starts(R0, t0, m, its),
-            first_only,
-            R0,
-            t0,
+        started = jnp.stack([started[:, 0], started[:, 1] & plane[2]], axis=1)
+    if options.refine_with == "mixed":
+        # steps 2-4 from every start, its step 2 giving the threshold (one linear kernel)
+        R1, t1, lin_error, converged, status_k, lin_status = _mixed_starts(
+            obs, R0, t0, started, options
         )
+        lin_step = jnp.full_like(lin_error, big)  # (from Levenberg-Marquardt: unknown)
+        error = jnp.where(converged, lin_error, big)
+        thr = None  # (the steps 2-4 accept by their own rule, the same)
+    elif two:
+        # (the default: one linear-kernel program for both columns and the partner)
+        assert plane is not None
+        return _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options)
     else:
         R1, t1, lin_error, lin_status, lin_step = _linear_starts(R0, t0, m, its)
-    converged = started & (lin_status == Status.OK)
-    error = jnp.where(converged, lin_error, big)
-
-    # 4. acceptance, as the mixed algorithm's
-    thr = threshold(obs, jnp.min(error, axis=-1), options)
-    status_k = jnp.full_like(lin_status, Status.ACCEPTED_LINEAR)
-    if mixed:
-        R1, t1, lin_error, converged, status_k = _mixed_starts(obs, thr, R0, t0, started, options)
+        converged = started & (lin_status == Status.OK)
         error = jnp.where(converged, lin_error, big)
-        lin_step = jnp.full_like(lin_error, big)  # (from Levenberg-Marquardt: unknown)
+        # 4. acceptance, as the mixed algorithm's
+        thr = threshold(obs, jnp.min(error, axis=-1), options)
+        status_k = jnp.full_like(lin_status, Status.ACCEPTED_LINEAR)
     k = jnp.argmin(error, axis=-1)[:, None]
     chosen = [
         a[:, 0]
@@ -247,8 +249,7 @@ def _best_block(obs: Observations, triplets: Int[Array, "B T 3"], options: Optio
     ]
     R1, t1, error = Mat3(*chosen[:9]), Vec3(*chosen[9:12]), chosen[12]
     converged_k, root, accepted_status, step = chosen[13], chosen[14], chosen[15], chosen[16]
-    # (the steps 2-4 accept by their own rule, the same)
-    accepted = converged_k if mixed else accepts(converged_k, error, thr)
+    accepted = converged_k if thr is None else accepts(converged_k, error, thr)
     pose = Pose(mat_to_array(R1), vec_to_array(t1))
 
     # 5. the planar partner of the answer (built and refined only in a block that has a

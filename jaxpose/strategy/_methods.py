@@ -21,7 +21,7 @@ from ..solvers._nonlinear import nonlinear
 from ..solvers._residuals import in_front
 from ..solvers._status import Status
 from ._accept import accepts, threshold
-from ._mixed import linear_all
+from ._linear_runs import linear_all
 from ._options import Options
 from ._triplets import Initial
 

@@ -68,17 +68,10 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry._pose import Observations, Pose
 from ..solvers._components import (
-    Mat3,
-    Vec3,
     mat_from_array,
-    mat_to_array,
     vec_from_array,
-    vec_to_array,
 )
 from ..solvers._kernel_linear import (
-    Matches,
-    in_chunks,
-    linear_kernel,
     matches_from_observations,
     pixel_error_kernel,
 )
@@ -87,6 +80,7 @@ from ..solvers._nonlinear import nonlinear
 from ..solvers._status import Status
 from ._accept import accepts, threshold
 from ._jobs import Jobs, default_chunk, ranked, run_jobs
+from ._linear_runs import linear_all, linear_block
 from ._options import Options, resolve
 from ._planar import planar_partner
 from ._triplets import Initial, best_triplet, initial_poses
@@ -129,10 +123,6 @@ class MixedResult(NamedTuple):
 
 # `MixedResult.root` of a pose that came from the planar partner start.
 PARTNER_ROOT = 4
-
-# Linear runs per pass of step 2 (`linear_all`): the kernel's intermediates stay in the
-# cache.
-LINEAR_PASS = 4096
 
 # Levenberg-Marquardt's iteration budget in the retries (second chance, planar partner),
 # in units of `max_steps`.
@@ -191,46 +181,6 @@ class _Layout(NamedTuple):
     partner: int
 
 
-def _linear_block(R: Mat3, t: Vec3, matches: Matches, iterations: int) -> LinearResult:
-    """`linear_kernel` from poses of batch shape `S` against `matches` broadcast to it,
-    as a `LinearResult` of arrays (`pose.R` `S + (3, 3)`)."""
-    R, t, error, step, status = linear_kernel(R, t, matches, iterations)
-    return LinearResult(Pose(mat_to_array(R), vec_to_array(t)), error, step, status)
-
-
-def linear_from(obs: Observations, pose: Pose, iterations: int) -> LinearResult:
-    """The linear method in production (`linear_kernel`) from `pose` on `obs`, one
-    problem or a batch (the same leading axes): the values of
-    `jaxpose.solvers.linear(obs, pose, iterations=iterations)`, its reference."""
-    m = matches_from_observations(obs)
-    return _linear_block(mat_from_array(pose.R), vec_from_array(pose.t), m, iterations)
-
-
-def linear_all(obs: Observations, poses: Pose, iterations: int) -> LinearResult:
-    """Step 2: the linear method from every triplet's pose of every problem (`(B, T)`),
-    the values of `linear(obs[b], poses[b, k], iterations=iterations)` computed by the
-    batch-first kernel (`linear_kernel`), in cache-sized passes of about `LINEAR_PASS`
-    runs: whole problems at a time, or, for a problem with more triplets than a pass, its
-    triplets in passes."""
-    B, T = poses.t.shape[:2]
-    matches = matches_from_observations(jax.tree.map(lambda x: x[:, None], obs))  # (B, 1)
-    R, t = mat_from_array(poses.R), vec_from_array(poses.t)  # (B, T)
-
-    def run(R, t, m):
-        return _linear_block(R, t, m, iterations)
-
-    if T <= LINEAR_PASS:
-        return in_chunks(run, R, t, matches, size=max(1, LINEAR_PASS // max(T, 1)))
-    size = -(-T // -(-T // LINEAR_PASS))  # near-equal passes
-
-    def one_problem(a):
-        R, t, m = a
-        m = jax.tree.map(lambda x: x[0], m)  # (1,): broadcast to the triplets
-        return in_chunks(lambda R, t: run(R, t, m), R, t, size=size)
-
-    return jax.lax.map(one_problem, (R, t, matches))
-
-
 def _ranked_batch(need: Bool[Array, "B T"], priority: Float[Array, "B T"], budget: int | None):
     """`ranked` of every problem (`(B, T)`). Where every problem needs at most `budget`
     elements, all of finite priority below the largest float, `ranked` keeps them all: the
@@ -251,19 +201,29 @@ def thresholds(obs: Observations, lin: LinearResult, lin_ok, options: Options):
     return threshold(obs, jnp.min(jnp.where(lin_ok, lin.error, big), axis=1), options)
 
 
-def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: Pose, steps):
+def job(
+    obs: Observations,
+    thr,
+    iterations: int,
+    lm_bound: int,
+    problem,
+    start: Pose,
+    steps,
+    first_status: bool = False,
+):
     """Steps 2-4 for `K` jobs at once, batch-first: job `j` starts from `start[j]` on
     problem `problem[j]` of the batch `obs`, with threshold `thr[problem[j]]`,
     `iterations` linear steps per run, and Levenberg-Marquardt with `steps[j]`
     iterations at most (`lm_bound`: its static bound). Returns `(pose, error, status)`,
-    each with the leading `K`.
+    each with the leading `K` (and, with `first_status`, the status of step 2's runs).
+    `thr` may be a function of step 2's runs (a `LinearResult` of `K`) giving the jobs'
+    thresholds: it is read only at the end, so no step 2 need run before.
 
     The two linear runs (from the start, then from LM's pose) are the two trips of one
     loop over the batch, Levenberg-Marquardt (`vmap`-ed) running after the first: one
     linear kernel in the compiled program, and no `vmap` of the loops (which JAX would
     trace again until it knows which of their values are batched)."""
     o = jax.tree.map(lambda x: x[problem], obs)
-    th = thr[problem]
     m = matches_from_observations(o)
     start_error = pixel_error_kernel(mat_from_array(start.R), vec_from_array(start.t), m)
 
@@ -278,7 +238,7 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     def trip(i, carry):
         runs, nl = carry
         pose = jax.tree.map(lambda a, b: jnp.where(i == 0, a, b), start, nl[0])
-        run = _linear_block(mat_from_array(pose.R), vec_from_array(pose.t), m, iterations)
+        run = linear_block(mat_from_array(pose.R), vec_from_array(pose.t), m, iterations)
         runs = jax.tree.map(lambda r, x: r.at[i].set(x), runs, run)
         return runs, jax.lax.cond(i == 0, lm, lambda _: nl, run)
 
@@ -288,6 +248,7 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     runs = jax.tree.map(lambda x: jnp.stack([x, x]), LinearResult(start, zero, zero, none))
     runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(0, 2, trip, (runs, nl))
     res, again = (jax.tree.map(lambda x, i=i: x[i], runs) for i in (0, 1))
+    th = thr(res) if callable(thr) else thr[problem]
     accepted = accepts(res.status == Status.OK, res.error, th)
     lm_ok = nl_status == Status.OK
     # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
@@ -309,7 +270,8 @@ def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: 
     poses = jax.tree.map(lambda *q: jnp.stack(q), res.pose, nl_pose, again.pose, pose4)
     rows = jnp.arange(pick.shape[0])
     pose = jax.tree.map(lambda x: x[pick, rows], poses)
-    return pose, errors[pick, rows], status.astype(jnp.int32)
+    out = (pose, errors[pick, rows], status.astype(jnp.int32))
+    return (*out, res.status) if first_status else out
 
 
 def set_jobs(jobs: Jobs, lo: int, need, priority, start: Pose) -> Jobs:

@@ -44,7 +44,7 @@ from ..geometry._pose import Observations, Pose, observations, transform
 from ..solvers._nonlinear import nonlinear
 from ..solvers._residuals import pixel_residuals, rms, safe_inverse_depth
 from ..solvers._status import Status
-from ._mixed import linear_from
+from ._linear_runs import linear_from
 from ._options import RobustOptions, resolve
 from ._triplets import area_threshold, triplet_indices, triplet_roots
 
