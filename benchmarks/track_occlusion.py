@@ -101,7 +101,7 @@ def run(seeds: int = 5, frames: int = 24) -> dict:
                 for i, (R, t) in enumerate(zip(Rs, ts, strict=True))
             ]  # fmt: skip
             for use in (True, False):
-                tracker._symmetries = symmetries if use else (lambda geo: [])
+                tracker._symmetries = symmetries if use else (lambda geo, within=0: [])
                 try:
                     began = time.perf_counter()
                     results = list(track(images, geo, K, None, (Rs[0], ts[0]), reinit=reinit))

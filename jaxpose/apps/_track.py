@@ -64,6 +64,8 @@ from ..features._klt import detect_corners, track_points
 from ..features._moving_edges import _grey, moving_edges
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
+from ._symmetry import NEAR_TWIN
+from ._symmetry import symmetries as _symmetries
 from ._track_options import TrackOptions
 from ._track_solve import Measurements, Solved, TrackRows, _orthonormal, solve_frame
 from ._visibility import (
@@ -279,27 +281,6 @@ def _unchanged(table: _Contrasts, old_sides, sides: np.ndarray) -> _Contrasts:
     return _Contrasts(table.keys[same], table.values[same])
 
 
-def _symmetries(geo: MeshGeometry) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The model's half-turn symmetries about its principal axes through its vertex
-    centroid `c`, as `(S, c)` with `S (m - c) + c` mapping the vertices onto themselves
-    (a box has three: seen by its edges alone, each is the same object). None for
-    models of over 4,000 vertices (not searched)."""
-    vertices = np.asarray(geo.model.vertices, np.float64)
-    if len(vertices) > 4000 or len(vertices) < 3:
-        return []
-    c = vertices.mean(axis=0)
-    X = vertices - c
-    tol = 1e-6 * max(float(np.ptp(vertices, axis=0).max()), 1e-300)
-    out = []
-    for axis in np.linalg.eigh(X.T @ X)[1].T:
-        S = 2 * np.outer(axis, axis) - np.eye(3)
-        moved = X @ S.T
-        if all(np.linalg.norm(X[None] - moved[i : i + 256, None], axis=2).min(axis=1).max()
-               <= tol for i in range(0, len(X), 256)):  # fmt: skip
-            out.append((S, c))
-    return out
-
-
 class _Fit(NamedTuple):
     """One frame's pose fitted from a start: `result` (the pose, whether the solve ran,
     the weighted edge matches and points, the RMS residual and the rows, as the frame
@@ -351,6 +332,37 @@ _NOTHING = _Fit(TrackedFrame(-1, np.eye(3), np.zeros(3), False, 0, 0, 0.0), _NO_
 
 #: How many of the last tracked frames set the usual RMS residual.
 _HISTORY = 15
+
+
+def _nearest_twin(grey, geo, K, dist, R, t, near, memory, size, options) -> tuple:
+    """Of the pose `(R, t)` and its near twins (`near`: `(S, c)` pairs), the start whose
+    fit the edges prefer: a twin replaces the pose when the frame supports its fit with
+    at least `TWIN_SUPPORT` times the pose's share of matched edge samples and at most
+    `TWIN_RESIDUAL` times its edge residual (a near twin's edges land a few pixels off)."""
+
+    def fitted(R_try, t_try) -> _Fit:
+        table = _NO_CONTRAST if memory is None else _unchanged(
+            memory[0], memory[1], _sides(geo, R_try, t_try, options.grazing))  # fmt: skip
+        return _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, table, size, options)
+
+    best, chosen = fitted(R, t), (R, t)
+    for S, c in near:
+        R_try, t_try = R @ S, t + R @ (c - S @ c)
+        fit = fitted(R_try, t_try)
+        if _supported(fit, [], options) and (
+            not _supported(best, [], options)
+            or (fit.support >= TWIN_SUPPORT * best.support
+                and fit.judged <= TWIN_RESIDUAL * best.judged)):  # fmt: skip
+            best, chosen = fit, (R_try, t_try)
+    return chosen
+
+
+#: A near twin's fit replaces the recognised pose's with at least this share of its matched
+#: edge samples and at most `TWIN_RESIDUAL` times its residual. On the bench's prism under a
+#: partial occlusion, the twin recognition gave: 0.84 of the samples at 0.41 px, the true
+#: pose 0.80 at 0.19 px; in clutter the true pose 0.99 at 0.19, its twins 0.75-0.79 at 0.16.
+TWIN_SUPPORT = 0.9
+TWIN_RESIDUAL = 0.75
 
 
 def _supported(fit: _Fit, usual: list[float], options: TrackOptions) -> bool:
@@ -450,6 +462,9 @@ def track(
         keys = _Keypoints(cv2.ORB.create(nfeatures=500), np.asarray(textured.points, np.float64),
                           np.ascontiguousarray(textured.descriptors))  # fmt: skip
     symmetries = _symmetries(geo) if reinit is not None else []
+    exact = [S for S, _ in symmetries]
+    near = [(S, c) for S, c in (_symmetries(geo, NEAR_TWIN) if reinit is not None else [])
+            if not any(np.allclose(S, E) for E in exact)]  # fmt: skip
 
     def run() -> Iterator[TrackedFrame]:
         pose = start  # the last pose held (None before the first)
@@ -503,9 +518,10 @@ def track(
                 # (Re-)initialisation: from the given pose on the first frame; later from
                 # the pose the injected `reinit` gives (and its symmetric variants: the
                 # same edges, told apart by the contrasts remembered from the last frame
-                # held), then from the last pose held; of the fits the frame supports,
-                # the one with the most edge matches of a remembered contrast (then the
-                # most edge matches).
+                # held; and its near twins, told apart by the edges themselves), then
+                # from the last pose held; of the fits the frame supports, the one with
+                # the most edge matches of a remembered contrast (then the most edge
+                # matches).
                 starts = [] if pose is None or index else [pose]
                 due = tried_at is None or (
                     index - tried_at[0] >= options.reinit_every
@@ -516,6 +532,10 @@ def track(
                     tried_at = (index, time.perf_counter())
                     if found is not None:
                         R_found, t_found = _as_pose(found)
+                        if near:  # of it and its near twins, the one the edges fit best
+                            R_found, t_found = _nearest_twin(grey, geo, K, dist, R_found,
+                                                             t_found, near, memory, size,
+                                                             options)  # fmt: skip
                         starts.append((R_found, t_found))
                         for S, c in symmetries if memory is not None else []:
                             starts.append((R_found @ S, t_found + R_found @ (c - S @ c)))
