@@ -95,7 +95,7 @@ def test_the_points_survive_a_step_of_the_exposure(box_photo):
 
 def test_the_prism_from_recognition_is_not_its_near_twin(prism):
     # The bench's cross prism is a near twin of itself half-turned about each axis (its
-    # arms 3-11 mm off symmetric on a 155 mm span): under the partial occlusion,
+    # vertices mapped within 1.5-5.4 mm on a 155 mm span): under the partial occlusion,
     # recognition from the mesh gives the twin on the first frame of this trajectory (1),
     # 179.5 degrees off, whose edges fit 0.2 px worse; it was tracked on every frame.
     from jaxpose.apps import recognition_reinit, track
