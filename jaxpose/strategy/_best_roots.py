@@ -36,7 +36,7 @@ from ..solvers._kernel_linear import (
 from ..solvers._kernel_p3p import p3p_components
 from ..solvers._status import Status
 from ._accept import accepts, threshold
-from ._mixed import job
+from ._mixed import job_and_step2
 from ._options import Options
 from ._planar import model_planes, planar_partner_batch
 from ._triplets import area_threshold
@@ -164,7 +164,7 @@ def _linear_starts(R: Mat3, t: Vec3, m: Matches, iterations: int):
 
 
 def _mixed_starts(obs: Observations, R0: Mat3, t0: Vec3, started, options: Options):
-    """The mixed algorithm's steps 2-4 (`jaxpose.strategy._mixed.job`: the linear method,
+    """The mixed algorithm's steps 2-4 (`jaxpose.strategy._mixed.job_and_step2`: the linear method,
     Levenberg-Marquardt where it does not reach an accepted pose, the linear method
     again) from the `K` starts of each problem (`(B, K)`), each problem's threshold
     taken from its started runs of step 2 (the acceptance of step 4). Returns the poses
@@ -182,16 +182,8 @@ def _mixed_starts(obs: Observations, R0: Mat3, t0: Vec3, started, options: Optio
         lowest = jnp.min(jnp.where(converged, first.error.reshape(B, K), big), axis=-1)
         return threshold(obs, lowest, options)[problem]
 
-    pose, error, status, first = job(
-        obs,
-        thresholds,
-        options.linear_iterations,
-        options.max_steps,
-        problem,
-        starts,
-        steps,
-        first_status=True,
-    )
+    its, bound = options.linear_iterations, options.max_steps
+    pose, error, status, first = job_and_step2(obs, thresholds, its, bound, problem, starts, steps)
     R = Mat3(*(pose.R[:, i, j].reshape(B, K) for i in range(3) for j in range(3)))
     t = Vec3(*(pose.t[:, i].reshape(B, K) for i in range(3)))
     status = status.reshape(B, K)

@@ -59,6 +59,7 @@ step 1 are in `jaxpose.strategy._triplets`.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -201,23 +202,27 @@ def thresholds(obs: Observations, lin: LinearResult, lin_ok, options: Options):
     return threshold(obs, jnp.min(jnp.where(lin_ok, lin.error, big), axis=1), options)
 
 
-def job(
+def job(obs: Observations, thr, iterations: int, lm_bound: int, problem, start: Pose, steps):
+    """Steps 2-4 for `K` jobs at once (`job_and_step2` without step 2's statuses)."""
+    return job_and_step2(obs, thr, iterations, lm_bound, problem, start, steps)[:3]
+
+
+def job_and_step2(
     obs: Observations,
-    thr,
+    thr: Array | Callable[[LinearResult], Array],
     iterations: int,
     lm_bound: int,
     problem,
     start: Pose,
     steps,
-    first_status: bool = False,
 ):
     """Steps 2-4 for `K` jobs at once, batch-first: job `j` starts from `start[j]` on
     problem `problem[j]` of the batch `obs`, with threshold `thr[problem[j]]`,
     `iterations` linear steps per run, and Levenberg-Marquardt with `steps[j]`
-    iterations at most (`lm_bound`: its static bound). Returns `(pose, error, status)`,
-    each with the leading `K` (and, with `first_status`, the status of step 2's runs).
-    `thr` may be a function of step 2's runs (a `LinearResult` of `K`) giving the jobs'
-    thresholds: it is read only at the end, so no step 2 need run before.
+    iterations at most (`lm_bound`: its static bound). Returns `(pose, error, status)`
+    and the status of step 2's runs, each with the leading `K`. `thr` may be a function
+    of step 2's runs (a `LinearResult` of `K`) giving the jobs' thresholds: it is read
+    only at the end, so no step 2 need run before.
 
     The two linear runs (from the start, then from LM's pose) are the two trips of one
     loop over the batch, Levenberg-Marquardt (`vmap`-ed) running after the first: one
@@ -248,7 +253,7 @@ def job(
     runs = jax.tree.map(lambda x: jnp.stack([x, x]), LinearResult(start, zero, zero, none))
     runs, (nl_pose, nl_error, nl_status) = jax.lax.fori_loop(0, 2, trip, (runs, nl))
     res, again = (jax.tree.map(lambda x, i=i: x[i], runs) for i in (0, 1))
-    th = thr(res) if callable(thr) else thr[problem]
+    th: Array = thr(res) if callable(thr) else thr[problem]
     accepted = accepts(res.status == Status.OK, res.error, th)
     lm_ok = nl_status == Status.OK
     # Step 4's linear run polishes LM's pose; where it does not converge, LM's own
@@ -270,8 +275,7 @@ def job(
     poses = jax.tree.map(lambda *q: jnp.stack(q), res.pose, nl_pose, again.pose, pose4)
     rows = jnp.arange(pick.shape[0])
     pose = jax.tree.map(lambda x: x[pick, rows], poses)
-    out = (pose, errors[pick, rows], status.astype(jnp.int32))
-    return (*out, res.status) if first_status else out
+    return pose, errors[pick, rows], status.astype(jnp.int32), res.status
 
 
 def set_jobs(jobs: Jobs, lo: int, need, priority, start: Pose) -> Jobs:
