@@ -20,7 +20,7 @@ from ..solvers._components import Mat3, Vec3, mat_to_array, vec_to_array
 from ..solvers._kernel_linear import linear_kernel, matches_from_observations
 from ..solvers._status import Status
 
-__all__ = ["SETTLED_STEP", "Answer", "fallback_slots", "finish_linear_batch"]
+__all__ = ["SETTLED_STEP", "Answer", "fallback_slots", "finish_linear_batch", "in_passes"]
 
 
 class Answer(NamedTuple):
@@ -67,24 +67,37 @@ def finish_linear_batch(obs: Observations, found: Answer, steps: int = 2) -> Ans
         every = functools.partial(_finish_linear, obs, steps=steps)
         return jax.lax.cond(jnp.any(need), every, lambda f: f, found)
 
+    def run(obs, found, take):
+        return _finish_linear(obs, found, steps), take
+
+    return in_passes(need, F, run, obs, found)
+
+
+def in_passes(need, F: int, run, obs: Observations, state):
+    """The rows of a batch that `need` it (`(B,)` bool) through `run`, gathered `F` at a
+    time, pass after pass until none is left: the one fallback mechanism of the pipeline
+    (its later rungs, the values-only finish), whose cost follows the rows that need it.
+    `run(obs_rows, state_rows, take)` (`take`: which of the `F` gathered rows need it;
+    the others fill the pass) returns the rows' new `state` and where to keep it; `state`
+    is a pytree of arrays with a leading `B` axis."""
+
     def pending(carry):
         return jnp.any(carry[0])
 
     def one_pass(carry):
-        need, found = carry
+        need, state = carry
         _, idx = jax.lax.top_k(need.astype(jnp.int32), F)
         take = need[idx]
-        part = _finish_linear(
-            jax.tree.map(lambda x: x[idx], obs), jax.tree.map(lambda x: x[idx], found), steps
-        )
+        part = jax.tree.map(lambda x: x[idx], state)
+        new, keep = run(jax.tree.map(lambda x: x[idx], obs), part, take)
 
         def scatter(old, new):
-            mask = take.reshape((F,) + (1,) * (new.ndim - 1))
+            mask = keep.reshape((F,) + (1,) * (new.ndim - 1))
             return old.at[idx].set(jnp.where(mask, new, old[idx]))
 
-        return need.at[idx].set(False), jax.tree.map(scatter, found, part)
+        return need.at[idx].set(False), jax.tree.map(scatter, state, new)
 
-    return jax.lax.while_loop(pending, one_pass, (need, found))[1]
+    return jax.lax.while_loop(pending, one_pass, (need, state))[1]
 
 
 def _finish_linear(obs: Observations, found: Answer, steps: int) -> Answer:

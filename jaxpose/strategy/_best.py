@@ -50,7 +50,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry._pose import Observations, Pose
-from ._answer import SETTLED_STEP, Answer, fallback_slots, finish_linear_batch
+from ._answer import SETTLED_STEP, Answer, fallback_slots, finish_linear_batch, in_passes
 from ._best_roots import Best, best_of_roots_batch
 from ._jobs import CHUNK
 from ._methods import per_triplet
@@ -238,32 +238,19 @@ def answer_batch(obs: Observations, options: Options) -> Answer:
         F = fallback_slots(B, _rung_triplets(rung, n))
         last = k + 1 == len(rungs)
 
-        def pending(carry):
-            return jnp.any(carry[0])
-
-        def one_pass(carry, rung=rung, F=F, last=last):
-            need, out, accepted = carry
-            _, idx = jax.lax.top_k(need.astype(jnp.int32), F)
-            take = need[idx]
-            found, ok = _rung(jax.tree.map(lambda x: x[idx], obs), rung)
+        def run(obs_rows, state_rows, take, rung=rung, last=last):
+            del state_rows  # (a rung starts afresh)
+            found, ok = _rung(obs_rows, rung)
             # the last rung's answer stands; an earlier one's only where it accepts
-            keep = take if last else take & ok
+            return (found, ok), (take if last else take & ok)
 
-            def scatter(old, new):
-                mask = keep.reshape((F,) + (1,) * (new.ndim - 1))
-                return old.at[idx].set(jnp.where(mask, new, old[idx]))
-
-            out = jax.tree.map(scatter, out, found)
-            accepted = accepted.at[idx].set(jnp.where(keep, ok, accepted[idx]))
-            return need.at[idx].set(False), out, accepted
-
-        def gather(carry, pending=pending, one_pass=one_pass):
-            return jax.lax.while_loop(pending, one_pass, carry)
+        def gather(state, run=run, F=F):
+            return in_passes(state[0], F, run, obs, state[1])
 
         need = ~accepted & rung_applies(rung, jnp.sum(obs.mask, axis=1))
         # (The loop inside a `cond`: XLA hoists the loop-invariant part of a rung's work
         # out of a `while_loop` and would run it on every call, needed or not, 4 ms for
         # one problem; a branch not taken runs nothing.)
-        carry = (need, out, accepted)
-        _, out, accepted = jax.lax.cond(jnp.any(need), gather, lambda c: c, carry)
+        carry = (need, (out, accepted))
+        out, accepted = jax.lax.cond(jnp.any(need), gather, lambda c: c[1], carry)
     return out
