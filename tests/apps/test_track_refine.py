@@ -55,12 +55,18 @@ def test_a_lost_frame_is_kept_and_breaks_the_chain(tracked):
     results, Rs, ts = tracked
     lost = list(results)
     lost[20] = lost[20]._replace(ok=False, status="lost", rows=None, R=lost[19].R, t=lost[19].t)
-    out = refine_track(lost, rotation_sigma=0.02)
+    out = refine_track(lost, rotation_sigma=0.02)  # (a strong prior: the chain matters)
     assert out.frames[20] is lost[20]
-    rot0, _ = _errors(results, Rs, ts)
-    rot1, _ = _errors(out.frames, Rs, ts)
-    seen = np.arange(40) != 20
-    assert rot1[seen].mean() <= rot0[seen].mean() * 1.05
+    # The lost frame's pose (the last one held, 2.7 degrees off) pulls no neighbour: the
+    # others are refined as if the frame were not there at all (a gap in the frame
+    # numbers breaks the chain the same way).
+    without = refine_track(results[:20] + results[21:], rotation_sigma=0.02)
+    others = out.frames[:20] + out.frames[21:]
+    for a, b in zip(others, without.frames, strict=True):
+        np.testing.assert_allclose(a.R, b.R, atol=1e-6)
+        np.testing.assert_allclose(a.t, b.t, atol=1e-6 * np.linalg.norm(b.t))
+    rot, _ = _errors(out.frames, Rs, ts)
+    assert rot[20] > 1.0 and np.all(rot[np.arange(40) != 20] < 0.5)
     # nothing to refine: fewer than three frames with a pose
     few = refine_track(results[:2])
     assert few.frames == results[:2] and few.iterations == 0
