@@ -17,9 +17,12 @@ its neighbours (exact for a Gaussian-blurred edge; measured on rendered edges, i
 three times as accurate as a plain parabola for sharp edges). An edge smeared by motion
 is a ramp whose derivative is a plateau: where the lobe around the peak (the contiguous
 derivatives above a fifth of it) is over three samples wide, the match is the lobe's
-centroid, the middle of the ramp (`_lobe_centre`). A match is kept when its derivative
-reaches `threshold`, it (and a wide lobe) is not at the end of the search range (where
-the edge may lie beyond it), and the whole search line lies in the image.
+centroid, the middle of the ramp (`_lobe_centre`); the smear also lowers the derivative,
+so a wide lobe whose step (the grey levels it spans) is three times `threshold` is a
+match even when its peak is below it (down to 0.4 of it). A match is kept when its
+derivative reaches `threshold` (or it is such a smeared edge), it (and a wide lobe) is
+not at the end of the search range (where the edge may lie beyond it), and the whole
+search line lies in the image.
 
 Each kept match gives a 2D line measurement: the sample `p`, the normal `n`, and the
 matched image point `p + d n`; the pose is moved so that the projected edge passes
@@ -39,10 +42,19 @@ from ..geometry._validate import no_type_check
 
 #: The least derivative the sub-pixel fit takes the logarithm of (grey levels per pixel).
 _TINY = 1e-3
-#: A match's lobe: the derivatives next to its peak (contiguous) above this fraction of it.
+#: A match's lobe: the derivatives next to its peak (contiguous) above this fraction of it,
+#: up to where they rise again by this fraction of it above the least one passed (the
+#: next edge's lobe).
 _LOBE_FLOOR = 0.2
+_LOBE_RISE = 0.2
 #: A lobe of more samples than this is a smeared edge: its centroid is the match.
 _LOBE_WIDE = 3
+#: A smeared edge's derivative is its step spread over the smear: with `"strongest"`, a
+#: wide lobe (inside the search range) whose peak is below `threshold` but at least
+#: `_WEAK_PEAK` of it is a match when its step (the sum of its derivatives, in grey
+#: levels) is at least `_STEP` times `threshold`.
+_WEAK_PEAK = 0.4
+_STEP = 3.0
 
 __all__ = ["EdgeMatches", "moving_edges"]
 
@@ -104,29 +116,41 @@ def _points(x, name: str, count: int | None) -> np.ndarray:
 
 def _lobe_centre(score: np.ndarray, best: np.ndarray):
     """The centroid (an offset index) of each row's lobe around its peak `best` (the
-    contiguous derivatives of the peak's sign above `_LOBE_FLOOR` of it, weighted by their
-    excess over that floor), whether the lobe is wide (over `_LOBE_WIDE` samples), and
-    whether it ends inside the search range (a wide lobe cut by the range's end may go
-    on beyond it: no match).
+    contiguous derivatives of the peak's sign above `_LOBE_FLOOR` of it, up to a rise of
+    `_LOBE_RISE` of it above the least passed; weighted by their excess over the floor),
+    whether the lobe is wide (over `_LOBE_WIDE` samples), whether it ends inside the
+    search range (a wide lobe cut by the range's end may go on beyond it: no match), and
+    its step (the sum of its derivatives).
 
     A moving edge smears its step into a ramp: the derivative is a plateau, whose peak
     noise places anywhere along it, while the centroid is the ramp's middle, the edge at
     mid-exposure. (Measured at the true poses of 24 rendered frames of the box turning
     up to 5 degrees a frame, each the mean of five renderings over half the frame
     interval: 90% of the offsets within 0.93 px by the peak's log-parabola, within 0.18 px
-    by the lobe's centroid; for the bench's prism 1.71 and 0.33 px.)"""
+    by the lobe's centroid; for the bench's prism 1.71 and 0.33 px.) The rise test keeps
+    a second edge of the same sign a few pixels away (clutter, a printed border) out of
+    the lobe."""
     rows, idx = np.arange(len(score)), np.arange(score.shape[1])
-    floor = _LOBE_FLOOR * score[rows, best][:, None]
-    below = score < floor
-    left = np.where(below & (idx < best[:, None]), idx, -1).max(axis=1, initial=-1) + 1
-    right = np.where(below & (idx > best[:, None]), idx, len(idx)).min(axis=1, initial=len(idx))
+    peak = score[rows, best][:, None]
+    floor, rise = _LOBE_FLOOR * peak, _LOBE_RISE * peak
+    # walking away from the peak on either side: the least value passed so far
+    ahead = np.minimum.accumulate(np.where(idx >= best[:, None], score, np.inf), axis=1)
+    behind = np.where(idx <= best[:, None], score, np.inf)[:, ::-1]
+    behind = np.minimum.accumulate(behind, axis=1)[:, ::-1]
+    stop_ahead = (score < floor) | (score > ahead + rise)
+    stop_behind = (score < floor) | (score > behind + rise)
+    left = np.where(stop_behind & (idx < best[:, None]), idx, -1).max(axis=1, initial=-1) + 1
+    right = np.where(stop_ahead & (idx > best[:, None]), idx, len(idx)).min(
+        axis=1, initial=len(idx)
+    )
     lobe = (idx >= left[:, None]) & (idx < right[:, None])
     weight = np.where(lobe, score - floor, 0.0)
     total = weight.sum(axis=1)
     centre = (weight * idx).sum(axis=1) / np.where(total > 0, total, 1.0)
     wide = (right - left > _LOBE_WIDE) & (total > 0)
     inside = (left > 0) & (right < len(idx))
-    return np.where(wide, centre, best.astype(np.float64)), wide, inside
+    step = np.where(lobe, score, 0.0).sum(axis=1)
+    return np.where(wide, centre, best.astype(np.float64)), wide, inside, step
 
 
 @no_type_check
@@ -227,7 +251,10 @@ def moving_edges(
     profile = values.reshape(count, len(m), len(tau)).mean(axis=2, dtype=np.float64)
     d = np.diff(profile, axis=1)  # (S, 2k + 1) at offsets -k..k
     score = np.where(sign[:, None] == 0, np.abs(d), d * sign[:, None])
-    allowed = score >= threshold
+    # (with "strongest", a peak down to `_WEAK_PEAK` of the threshold is looked at: a
+    # smeared edge's, taken when its lobe's step is large, see `_STEP`)
+    weak = _WEAK_PEAK if choose == "strongest" else 1.0
+    allowed = score >= weak * threshold
     if ratio is not None:  # the expected contrast's size, within a factor `ratio`
         size = np.abs(expected)[:, None]
         allowed &= (size == 0) | ((score >= size / ratio) & (score <= size * ratio))
@@ -254,10 +281,12 @@ def moving_edges(
     fit = interior & (curve < -1e-12)
     delta = 0.5 * (logs[:, 0] - logs[:, 2]) / np.where(fit, curve, -1.0)
     delta = np.where(fit, np.clip(delta, -0.5, 0.5), 0.0)
-    centre, wide, inside = _lobe_centre(d * polarity[:, None], best)
+    centre, wide, inside, step = _lobe_centre(d * polarity[:, None], best)
     delta = np.where(wide, centre - best, delta)
     interior &= ~wide | inside
-    valid = keep & interior & allowed_best
+    strong = score[rows, best] >= threshold
+    smeared = wide & (step >= _STEP * threshold)
+    valid = keep & interior & allowed_best & (strong | smeared)
     offset = np.where(valid, best - k + delta, 0.0)
     strength = np.where(valid, d[rows, best], 0.0)
     matched = points + offset[:, None] * n

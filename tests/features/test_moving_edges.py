@@ -137,6 +137,30 @@ def test_a_smeared_edge_is_found_at_its_middle():
     # cut by the end of a shorter range, the lobe gives no match
     cut = moving_edges(image, points + [2.0, 0.0], normals, search=4, threshold=8.0)
     assert not cut.valid.any()
+    # Smeared over 8 px, a step of 60 rises 7.5 a pixel, below the threshold of 8: the
+    # lobe's step (60 >= 3 x 8) makes it a match; the same slope over 2 px is none.
+    ramp = np.clip((x + 0.5 - 26.0) / 8.0, 0.0, 1.0)
+    smeared = 40.0 + 60.0 * np.tile(ramp, (60, 1)) + rng.normal(0.0, 0.5, (60, 80))
+    found = moving_edges(smeared, points, normals, search=8, threshold=8.0)
+    assert found.valid.all()
+    np.testing.assert_allclose(found.matched[:, 0], 29.5, atol=0.25)
+    short = np.clip((x + 0.5 - 29.0) / 2.0, 0.0, 1.0)
+    faint = 40.0 + 15.0 * np.tile(short, (60, 1))
+    assert not moving_edges(faint, points, normals, search=8, threshold=8.0).valid.any()
+    # Two rising edges 3.5 px apart (a printed border beside an outline), blurred: the
+    # derivative between them stays above the lobe's floor, and the lobe stops where it
+    # rises again, so the match is the stronger edge; without that stop, between them.
+    two = np.full((60, 80), 40.0)
+    two[:, 30:] += 100.0
+    two[:, 34:] += 60.0  # (a step between pixels 29 | 30 and 33 | 34, blurred below)
+    two = cv2.GaussianBlur(two, (0, 0), 1.0)
+    at = (np.column_stack([np.full(20, 30.3), np.linspace(8, 52, 20)]), normals)
+    found = moving_edges(two, *at, search=8, threshold=8.0)
+    np.testing.assert_allclose(found.matched[:, 0], 29.5, atol=0.35)  # (measured: 29.78)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("jaxpose.features._moving_edges._LOBE_RISE", np.inf)
+        merged = moving_edges(two, *at, search=8, threshold=8.0)
+    assert np.all(merged.matched[:, 0] > 30.5)  # (measured: 30.73)
 
 
 def test_a_video_sized_image():
