@@ -60,7 +60,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..features._klt import detect_corners, track_points
+from ..features._klt import detect_corners, relit, track_points
 from ..features._moving_edges import _grey, moving_edges
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
@@ -117,26 +117,6 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     import cv2
 
     return cv2.Rodrigues(np.asarray(w, np.float64).reshape(3, 1))[0]
-
-
-#: The change of the mean grey level between two frames (a fraction of it) above which
-#: the last frame is brought to the new one's exposure before the KLT points are followed.
-_EXPOSURE_STEP = 0.05
-
-
-def _relit(previous: np.ndarray, grey: np.ndarray) -> np.ndarray:
-    """`previous` (uint8) with the mean and spread of `grey` where the mean grey level
-    changed by more than `_EXPOSURE_STEP` (a light switched, an exposure step): Lucas
-    and Kanade's flow assumes the grey levels constant, and a frame dimmed by 30% lost
-    90% of the points (81 to 8, photo-textured box) and pulled the pose by 1.8 degrees.
-    Below it, `previous` as it is (a gradual change: no effect on the points)."""
-    a, b = float(previous.mean()), float(grey.mean())
-    if abs(b - a) <= _EXPOSURE_STEP * max(a, 1.0):
-        return previous
-    spread = float(previous.std())
-    gain = float(grey.std()) / spread if spread > 1e-6 else 1.0
-    return np.clip((previous - np.float32(a)) * np.float32(gain) + np.float32(b), 0, 255
-                   ).astype(np.uint8)  # fmt: skip
 
 
 def _undistort(pixels: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
@@ -314,6 +294,7 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
         solved = _solve(R, t, K, meas, options)
         if not solved.ok or not np.all(np.isfinite(solved.t)):
             return fit._replace(result=fit.result._replace(ok=False))
+        moved = _moved(K, np.vstack([e_model, corners.model]), (R, t), (solved.R, solved.t))
         R, t = solved.R, solved.t
         kept = solved.w_e > 0
         order = np.argsort(e_index[kept])
@@ -323,7 +304,19 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
                               rows=solved.rows)  # fmt: skip
         fit = _Fit(result, _Contrasts(e_index[kept][order], e_strength[kept][order]),
                    solved.w_p, support, solved.judged)  # fmt: skip
+        if round_ >= 1 and moved <= options.settle:  # (measured again: hardly moved)
+            break
     return fit
+
+
+def _moved(K, model: np.ndarray, a: tuple, b: tuple) -> float:
+    """How far (px, the most over `model`'s points) pose `b` moves them from pose `a`
+    in the pinhole camera `K`."""
+    if len(model) == 0:
+        return 0.0
+    u, v = (K @ (model @ p[0].T + p[1]).T for p in (a, b))
+    depth = np.maximum(np.abs(u[2]), 1e-12), np.maximum(np.abs(v[2]), 1e-12)
+    return float(np.max(np.hypot(*(u[:2] / depth[0] - v[:2] / depth[1]))))
 
 
 #: The fit of a frame on which nothing was tried.
@@ -488,7 +481,7 @@ def track(
             if pose is not None and last_seen is not None:  # tracking (the last frame held)
                 # KLT points from the previous frame; the pose predicted.
                 if previous is not None and len(corners.pixels) and options.use_points:
-                    tracks = track_points(_relit(previous, grey8), grey8, corners.pixels,
+                    tracks = track_points(relit(previous, grey8), grey8, corners.pixels,
                                           fb_threshold=options.fb_threshold)  # fmt: skip
                     corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
                 R_pred, t_pred = pose

@@ -15,7 +15,9 @@ class TrackOptions:
     **Fields:**
     - `spacing`: pixels between edge samples; `search`: the first search range (+-px);
       `refine_search`: the range of the later rounds; `threshold`: the least derivative
-      of an edge (grey levels per pixel); `rounds`: edge measurements per frame.
+      of an edge (grey levels per pixel); `rounds`: edge measurements per frame at most,
+      `settle`: the later rounds stop once one moves the measured points by at most this
+      many pixels (the edges measured again from a pose that hardly moved: the same).
     - `max_corners`: KLT points kept at most; `min_corners`: top the set up below this;
       `erode`: pixels kept away from the faces' borders when detecting;
       `fb_threshold`: forward-backward check (px).
@@ -67,7 +69,8 @@ class TrackOptions:
     search: int = 12
     refine_search: int = 4
     threshold: float = 8.0
-    rounds: int = 2
+    rounds: int = 3
+    settle: float = 0.1
     max_corners: int = 200
     min_corners: int = 60
     erode: int = 6
@@ -105,6 +108,7 @@ _CHECKS: tuple[tuple[str, str, object], ...] = (
     ("refine_search", "int", 2),
     ("threshold", "number", 0),
     ("rounds", "int", 1),
+    ("settle", "length", None),
     ("max_corners", "int", 1),
     ("min_corners", "int", 0),
     ("erode", "int", 0),
