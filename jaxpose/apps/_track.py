@@ -32,9 +32,10 @@ Each edge sample expects the contrast (sign and size) that the match nearest to 
 the model had on the last frame, so that a printed line beside an edge is not taken
 for it.
 
-The edges are measured again from the refined pose (`rounds` times, the search range
-shrinking to `refine_search`). Distortion is removed from the measurements first
-(`cv2.undistortPoints`), so the solve is that of a pinhole camera.
+The edges are measured again from the refined pose (up to `rounds` times, the search
+range shrinking to `refine_search`, until a round hardly moves the pose); a fit from the
+predicted pose that the frame does not support is made again from the last pose held.
+Distortion is removed from the measurements first (`cv2.undistortPoints`).
 
 Each frame's status is honest: a frame whose measurements do not support the pose
 (`TrackOptions`: too few weighted rows, too few of the visible edge samples matched,
@@ -506,6 +507,12 @@ def track(
                              options)  # fmt: skip
                 tried = tried._replace(w_p=tried.w_p[: len(corners.pixels)])  # the KLT points'
                 good = tried if _supported(tried, usual, options) else None
+                if good is None and R_pred is not pose[0]:
+                    # the motion changed (the prism turning edge-on: 5-10 degrees off)
+                    again = _fit(grey, geo, K, dist, *pose, measured, contrasts, size, options)
+                    again = again._replace(w_p=again.w_p[: len(corners.pixels)])
+                    if _supported(again, usual, options):
+                        tried = good = again
                 status = "tracked"
             else:
                 # (Re-)initialisation: from the given pose on the first frame; later from
