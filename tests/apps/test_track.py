@@ -136,6 +136,27 @@ def test_a_wrong_start_is_pulled_in_and_a_blank_frame_keeps_the_pose():
     np.testing.assert_array_equal(blank[0].R, Rs[0])
 
 
+def test_a_third_round_only_where_the_second_moved_the_pose():
+    # `rounds` is the most rounds of edge measurements: after the second, another only
+    # where the last moved the measured points by more than `settle` px. With a `settle`
+    # no round reaches, three rounds are two; with 0, every frame makes the third.
+    frames, Rs, ts = _sequence(
+        40, keep=4, shades=np.array([200.0, 90.0, 150.0, 240.0, 120.0, 60.0])
+    )
+
+    def poses(**kw):
+        options = TrackOptions(use_points=False, **kw)
+        return [(r.R, r.t) for r in track(frames, GEO, K, None, (Rs[0], ts[0]), options=options)]
+
+    two, never, always = poses(rounds=2), poses(rounds=3, settle=1e9), poses(settle=0.0)
+    for (Ra, ta), (Rb, tb), (Rc, _) in zip(two, never, always, strict=True):
+        np.testing.assert_array_equal(Ra, Rb)
+        np.testing.assert_array_equal(ta, tb)
+        assert not np.array_equal(Ra, Rc)
+    with pytest.raises(ValueError, match="options.settle"):
+        TrackOptions(settle=-0.1)
+
+
 def test_bad_arguments():
     R, t = np.eye(3), np.array([0.0, 0.0, 80.0])
     with pytest.raises(ValueError, match="initial_pose"):
