@@ -9,7 +9,7 @@ import numpy as np
 
 from ._visibility import MeshGeometry
 
-__all__ = ["NEAR_TWIN", "symmetries"]
+__all__ = ["NEAR_TWIN", "symmetries", "turned"]
 
 
 def symmetries(geo: MeshGeometry, within: float = 1e-6) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -40,3 +40,10 @@ def symmetries(geo: MeshGeometry, within: float = 1e-6) -> list[tuple[np.ndarray
 #: about the others, on a 155 mm span). Recognition from the edges may return the twin;
 #: its edges fit the image a pixel or two off.
 NEAR_TWIN = 0.1
+
+
+def turned(R: np.ndarray, t: np.ndarray, S: np.ndarray, c: np.ndarray) -> tuple:
+    """The pose `(R, t)` of the model turned by its symmetry `(S, c)` (`symmetries`):
+    `R S` and `t + R (c - S c)`, so that each vertex lands where its image under the
+    turn was."""
+    return R @ S, t + R @ (c - S @ c)

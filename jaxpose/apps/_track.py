@@ -65,10 +65,10 @@ from ..features._klt import detect_corners, relit, track_points
 from ..features._moving_edges import _grey, moving_edges
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
-from ._symmetry import NEAR_TWIN
+from ._symmetry import NEAR_TWIN, turned
 from ._symmetry import symmetries as _symmetries
 from ._track_options import TrackOptions
-from ._track_solve import Measurements, Solved, TrackRows, _orthonormal, solve_frame
+from ._track_solve import Measurements, Solved, TrackRows, _orthonormal, moved_pixels, solve_frame
 from ._visibility import (
     MeshGeometry,
     _check_pose,
@@ -251,6 +251,14 @@ def _sides(geo: MeshGeometry, R, t, grazing: float) -> np.ndarray:
     return np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
 
 
+def _remembered(memory, geo: MeshGeometry, R, t, grazing: float) -> _Contrasts:
+    """The contrasts of the last frame held (`memory`: its table and its faces seen) that
+    a fit from `(R, t)` may expect (`_unchanged`); none without a frame held."""
+    if memory is None:
+        return _NO_CONTRAST
+    return _unchanged(memory[0], memory[1], _sides(geo, R, t, grazing))
+
+
 def _unchanged(table: _Contrasts, old_sides, sides: np.ndarray) -> _Contrasts:
     """The entries of `table` (contrasts measured where the faces were seen as
     `old_sides`) on edges whose faces are seen as they were: an edge whose faces changed
@@ -295,7 +303,10 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
         solved = _solve(R, t, K, meas, options)
         if not solved.ok or not np.all(np.isfinite(solved.t)):
             return fit._replace(result=fit.result._replace(ok=False))
-        moved = _moved(K, np.vstack([e_model, corners.model]), (R, t), (solved.R, solved.t))
+        # (measured again from a pose that hardly moved: the same edges)
+        settled = round_ >= 1 and options.settle >= moved_pixels(
+            K, np.vstack([e_model, corners.model]), (R, t), (solved.R, solved.t)
+        )
         R, t = solved.R, solved.t
         kept = solved.w_e > 0
         order = np.argsort(e_index[kept])
@@ -305,19 +316,9 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) 
                               rows=solved.rows)  # fmt: skip
         fit = _Fit(result, _Contrasts(e_index[kept][order], e_strength[kept][order]),
                    solved.w_p, support, solved.judged)  # fmt: skip
-        if round_ >= 1 and moved <= options.settle:  # (measured again: hardly moved)
+        if settled:
             break
     return fit
-
-
-def _moved(K, model: np.ndarray, a: tuple, b: tuple) -> float:
-    """How far (px, the most over `model`'s points) pose `b` moves them from pose `a`
-    in the pinhole camera `K`."""
-    if len(model) == 0:
-        return 0.0
-    u, v = (K @ (model @ p[0].T + p[1]).T for p in (a, b))
-    depth = np.maximum(np.abs(u[2]), 1e-12), np.maximum(np.abs(v[2]), 1e-12)
-    return float(np.max(np.hypot(*(u[:2] / depth[0] - v[:2] / depth[1]))))
 
 
 #: The fit of a frame on which nothing was tried.
@@ -335,13 +336,12 @@ def _nearest_twin(grey, geo, K, dist, R, t, near, memory, size, options) -> tupl
     `TWIN_RESIDUAL` times its edge residual (a near twin's edges land a few pixels off)."""
 
     def fitted(R_try, t_try) -> _Fit:
-        table = _NO_CONTRAST if memory is None else _unchanged(
-            memory[0], memory[1], _sides(geo, R_try, t_try, options.grazing))  # fmt: skip
+        table = _remembered(memory, geo, R_try, t_try, options.grazing)
         return _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, table, size, options)
 
     best, chosen = fitted(R, t), (R, t)
     for S, c in near:
-        R_try, t_try = R @ S, t + R @ (c - S @ c)
+        R_try, t_try = turned(R, t, S, c)
         fit = fitted(R_try, t_try)
         if _supported(fit, [], options) and (
             not _supported(best, [], options)
@@ -538,15 +538,12 @@ def track(
                                                              options)  # fmt: skip
                         starts.append((R_found, t_found))
                         for S, c in symmetries if memory is not None else []:
-                            starts.append((R_found @ S, t_found + R_found @ (c - S @ c)))
+                            starts.append(turned(R_found, t_found, S, c))
                 if index and pose is not None:
                     starts.append(pose)
                 best = (-1, -1)
                 for R_try, t_try in starts:
-                    table = _NO_CONTRAST
-                    if memory is not None:
-                        sides = _sides(geo, R_try, t_try, options.grazing)
-                        table = _unchanged(memory[0], memory[1], sides)
+                    table = _remembered(memory, geo, R_try, t_try, options.grazing)
                     tried = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, table, size,
                                  options)  # fmt: skip
                     # Told apart by the matches that kept a remembered contrast.

@@ -56,7 +56,7 @@ from ..geometry._numerics import masked_centroid
 from ..geometry._rotation import rotvec_to_matrix
 from ..solvers._linalg import cholesky_solve
 
-__all__ = ["Measurements", "Solved", "TrackRows", "plane_rows", "solve_frame"]
+__all__ = ["Measurements", "Solved", "TrackRows", "moved_pixels", "plane_rows", "solve_frame"]
 
 #: Tukey's biweight constant (95% efficiency under Gaussian noise).
 TUKEY = 4.685
@@ -317,3 +317,13 @@ def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
                      scales[:U].astype(np.float64))  # fmt: skip
     return Solved(_orthonormal(R1.astype(np.float64)), t1.astype(np.float64), tukey[:E],
                   tukey[E:], float(rms), float(judged), bool(ok), rows)  # fmt: skip
+
+
+def moved_pixels(K, model: np.ndarray, a: tuple, b: tuple) -> float:
+    """How far (px, the most over `model`'s points) pose `b` moves them from pose `a`
+    in the pinhole camera `K`."""
+    if len(model) == 0:
+        return 0.0
+    u, v = (K @ (model @ p[0].T + p[1]).T for p in (a, b))
+    depth = np.maximum(np.abs(u[2]), 1e-12), np.maximum(np.abs(v[2]), 1e-12)
+    return float(np.max(np.hypot(*(u[:2] / depth[0] - v[:2] / depth[1]))))

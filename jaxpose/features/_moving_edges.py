@@ -150,7 +150,7 @@ def _lobe_centre(score: np.ndarray, best: np.ndarray):
     wide = (right - left > _LOBE_WIDE) & (total > 0)
     inside = (left > 0) & (right < len(idx))
     step = np.where(lobe, score, 0.0).sum(axis=1)
-    return np.where(wide, centre, best.astype(np.float64)), wide, inside, step
+    return centre, wide, inside, step
 
 
 @no_type_check
