@@ -284,13 +284,14 @@ class _Fit(NamedTuple):
     judged: float
 
 
-def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options) -> _Fit:
+def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options, rounds=None):
     """The pose of one frame from `(R, t)`: edges measured and the pose solved,
-    `options.rounds` times (the search range shrinking), with the KLT points given."""
+    `rounds` times at most (`options.rounds`; the search range shrinking), with the KLT
+    points given."""
     points_px = _undistort(corners.pixels, K, dist)
     fit = _Fit(TrackedFrame(-1, R, t, False, 0, 0, 0.0), _NO_CONTRAST,
                np.zeros(len(points_px)), 0.0, 0.0)  # fmt: skip
-    for round_ in range(options.rounds):
+    for round_ in range(options.rounds if rounds is None else rounds):
         search = options.search if round_ == 0 else options.refine_search
         if options.use_edges:
             e_model, e_lines, e_index, e_strength, wanted = _edge_measurements(
@@ -545,7 +546,7 @@ def track(
                 for R_try, t_try in starts:
                     table = _remembered(memory, geo, R_try, t_try, options.grazing)
                     tried = _fit(grey, geo, K, dist, R_try, t_try, _NO_CORNERS, table, size,
-                                 options)  # fmt: skip
+                                 options, options.init_rounds)  # fmt: skip
                     # Told apart by the matches that kept a remembered contrast.
                     score = (np.count_nonzero(_expected(table, tried.table.keys)),
                              tried.result.edges)  # fmt: skip

@@ -139,7 +139,8 @@ def test_a_wrong_start_is_pulled_in_and_a_blank_frame_keeps_the_pose():
 def test_a_third_round_only_where_the_second_moved_the_pose():
     # `rounds` is the most rounds of edge measurements: after the second, another only
     # where the last moved the measured points by more than `settle` px. With a `settle`
-    # no round reaches, three rounds are two; with 0, every frame makes the third.
+    # no round reaches, three rounds are two (the first frame's `init_rounds` too); with 0,
+    # every frame makes the third.
     frames, Rs, ts = _sequence(
         40, keep=4, shades=np.array([200.0, 90.0, 150.0, 240.0, 120.0, 60.0])
     )
@@ -148,7 +149,8 @@ def test_a_third_round_only_where_the_second_moved_the_pose():
         options = TrackOptions(use_points=False, **kw)
         return [(r.R, r.t) for r in track(frames, GEO, K, None, (Rs[0], ts[0]), options=options)]
 
-    two, never, always = poses(rounds=2), poses(rounds=3, settle=1e9), poses(settle=0.0)
+    two, never = poses(rounds=2, init_rounds=2), poses(rounds=3, settle=1e9)
+    always = poses(settle=0.0)
     for (Ra, ta), (Rb, tb), (Rc, _) in zip(two, never, always, strict=True):
         np.testing.assert_array_equal(Ra, Rb)
         np.testing.assert_array_equal(ta, tb)
