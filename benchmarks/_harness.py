@@ -86,6 +86,14 @@ def _proc_field(path: str, prefix: str) -> str | None:
     return None
 
 
+def _simd() -> str | None:
+    """The widest x86 vector extension the processor has (`"avx512f"`, `"avx2"`...): the
+    machines named alike ("AMD EPYC") come with AVX2 only or with AVX-512, and their
+    timings differ by that."""
+    flags = set((_proc_field("/proc/cpuinfo", "flags") or "").split())
+    return next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), None)
+
+
 def machine() -> dict:
     """The machine, the load on it and the versions that matter for timings.
 
@@ -100,6 +108,7 @@ def machine() -> dict:
         "cpu": _proc_field("/proc/cpuinfo", "model name")
         or platform.processor()
         or platform.machine(),
+        "simd": _simd(),
         "cores": os.cpu_count(),
         "cpu_count": os.cpu_count(),
         "memory_gb": round(int(memory.split()[0]) / 2**20, 1) if memory else None,

@@ -70,8 +70,16 @@ def pytest_collection_modifyitems(items):
 # `$JAXPOSE_COMPILE_LOG` when set: a clean clone's count is the suite's program count.
 _COMPILES = {"count": 0, "seconds": 0.0}
 # With `$JAXPOSE_COMPILE_DETAIL` set too, every compilation is written there, one line
-# each: worker, test, program name, seconds.
+# each: worker, test, program name, seconds; and each tracing and lowering, named
+# `trace:` and `lower:` and the function.
 _DETAIL = {"test": "collection", "lines": []}
+
+
+#: JAX's events of the steps before compilation: tracing to a jaxpr, lowering it to MLIR.
+_STEPS = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+}
 
 
 def _count_compile(event, duration, **kwargs):
@@ -79,6 +87,9 @@ def _count_compile(event, duration, **kwargs):
         _COMPILES["count"] += 1
         _COMPILES["seconds"] += duration
         name = _DETAIL.get("program") or kwargs.get("fun_name", "?")
+        _DETAIL["lines"].append(f"{_DETAIL['test']}\t{name}\t{duration:.3f}")
+    elif event in _STEPS and os.environ.get("JAXPOSE_COMPILE_DETAIL"):
+        name = f"{_STEPS[event]}:{kwargs.get('fun_name', '?')}"
         _DETAIL["lines"].append(f"{_DETAIL['test']}\t{name}\t{duration:.3f}")
 
 
