@@ -73,6 +73,23 @@ def test_the_first_frame_fitted_until_it_settles(box_photo):
         TrackOptions(init_rounds=0)
 
 
+def test_recognition_in_clutter_keeps_more_vertices_when_it_finds_nothing(prism):
+    # On the first frame of trajectory 3 in clutter, the junctions of the background's
+    # lines crowd the prism's corners out of the front end's 60 best vertices: nothing is
+    # recognised; the second try with `MORE_VERTICES` (120) finds it.
+    from jaxpose.apps import recognition_reinit
+    from jaxpose.apps._reinit import MORE_VERTICES
+
+    images, Rs, ts, _ = bench.sequence(prism, "clutter", 24, 3, keep=1)
+    assert recognition_reinit(prism.mesh, prism.K, more_vertices=None)(images[0], 0) is None
+    R, t = recognition_reinit(prism.mesh, prism.K)(images[0], 0)
+    angle = np.degrees(np.arccos(np.clip((np.trace(R @ Rs[0].T) - 1) / 2, -1, 1)))
+    assert angle < 0.5 and MORE_VERTICES == 120
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="more_vertices"):
+            recognition_reinit(prism.mesh, prism.K, more_vertices=bad)
+
+
 def test_the_figures_of_a_run():
     # A stand-in for `track`'s results: lost while hidden, back one frame later, one
     # frame off target, and the box's half turn counted only up to symmetry.

@@ -10,17 +10,28 @@ Plain numpy around the recognition front end (whose compiled programs are stored
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from ..features._keypoints import TexturedModel
+from ..features._vertices import image_primitives
 from ..geometry._validate import as_dist_coeffs, as_intrinsics, no_type_check
 from ._polyhedron import Polyhedron
 from ._visibility import MeshGeometry
 
-__all__ = ["recognition_reinit"]
+__all__ = ["MORE_VERTICES", "recognition_reinit"]
+
+#: Image vertices kept by the second try of `recognition_reinit` (the front end keeps 60):
+#: on the first frames of the bench's prism rendered in clutter (`benchmarks.track_rendered`,
+#: trajectories 2 and 3), recognition found nothing with 60 and the prism within 0.1
+#: degree with 120 (1.7 and 4.5 s; 8 and 12 s with 200).
+MORE_VERTICES = 120
+
+#: The front end's own number of vertices kept (`image_primitives`'s default).
+_FRONT_END_VERTICES = inspect.signature(image_primitives).parameters["max_vertices"].default
 
 
 @no_type_check
@@ -30,6 +41,7 @@ def recognition_reinit(
     dist_coeffs=None,
     *,
     textured: TexturedModel | None = None,
+    more_vertices: int | None = MORE_VERTICES,
     **options: Any,
 ) -> Callable[[np.ndarray, int], tuple[np.ndarray, np.ndarray] | None]:
     """A `reinit` for `jaxpose.apps.track`: the pose of `model` in a frame by
@@ -40,6 +52,10 @@ def recognition_reinit(
     - `camera_matrix` `(3, 3)`, `dist_coeffs`: the camera (OpenCV's conventions).
     - `textured`: a `TexturedModel` of the object: its keypoints are tried first (a
       pose with enough inliers is taken), the mesh's recognition after.
+    - `more_vertices`: where the mesh's recognition finds nothing among the front end's
+      `max_vertices` best image vertices (60 by default), it is tried once more keeping
+      this many (`MORE_VERTICES`); None: not. In clutter the junctions of background
+      lines crowd the object's corners out of the best 60.
     - `options`: `recognize`'s (`front_end`, and `detect`'s: `noise`, `min_support`...).
 
     **Returns:** `reinit(frame, index)`: `(R (3, 3), t (3,))`, model to camera, or None
@@ -59,6 +75,15 @@ def recognition_reinit(
     if textured is not None and not isinstance(textured, TexturedModel):
         raise ValueError(f"textured must be a TexturedModel or None, got "
                          f"{type(textured).__name__}")  # fmt: skip
+    if more_vertices is not None and (
+        isinstance(more_vertices, bool) or not isinstance(more_vertices, int) or more_vertices < 1
+    ):
+        raise ValueError(f"more_vertices must be a positive int or None, got {more_vertices!r}")
+    front_end = dict(options.pop("front_end", None) or {})
+    tries = [front_end]
+    kept = front_end.get("max_vertices", _FRONT_END_VERTICES)
+    if more_vertices is not None and more_vertices > kept:
+        tries.append(front_end | {"max_vertices": more_vertices})
     K = as_intrinsics(camera_matrix, "camera_matrix")
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
 
@@ -68,8 +93,10 @@ def recognition_reinit(
             pose = locate_textured(frame, textured, K, dist)
             if pose.ok:
                 return cv2.Rodrigues(pose.rvec)[0], pose.tvec.reshape(3)
-        for detection in recognize(frame, [mesh], K, dist, **options).detections:
-            return np.asarray(detection.R, np.float64), np.asarray(detection.t, np.float64)
+        for front in tries:
+            found = recognize(frame, [mesh], K, dist, front_end=front, **options).detections
+            if found:
+                return np.asarray(found[0].R, np.float64), np.asarray(found[0].t, np.float64)
         return None
 
     return reinit
