@@ -34,10 +34,10 @@ Starts (`STARTS`): `given` (the true first pose) and `recognition` (no first pos
 has `recognition_reinit` as `reinit` (`reinit_for`): recognition from the mesh alone,
 except for the `recognition` start of `box_photo`, which has the box's textured model
 (OpenCV's tutorial ORB model, `cookies_ORB.yml.gz`, made from the photograph its
-textures come from) as `jaxpose track --textured` has it: its keypoints first (a pose
-with enough inliers is taken), the mesh after; on the first frame and after every lost
-one. Recognition from the mesh alone cannot tell the box from its half-turned twins
-(they show the same edges), the keypoints can. `box_flat` and the prism have no
+textures come from) as `jaxpose track --textured` has it: the mesh's pose or its
+half-turned twin nearest the keypoints' pose (`recognition_reinit`); on the first frame
+and after every lost one. Recognition from the mesh alone cannot tell the box from its
+half-turned twins (they show the same edges), the keypoints can. `box_flat` and the prism have no
 texture: the mesh alone. (Only the initial and re-initial poses come from the
 keypoints: as with `jaxpose track --textured`, the tracker's own measurements are edges
 and KLT points, `track`'s `textured` is not passed.)
