@@ -284,7 +284,9 @@ class _Fit(NamedTuple):
     judged: float
 
 
-def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options, rounds=None):
+def _fit(
+    grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options, rounds: int | None = None
+) -> _Fit:
     """The pose of one frame from `(R, t)`: edges measured and the pose solved,
     `rounds` times at most (`options.rounds`; the search range shrinking), with the KLT
     points given."""
