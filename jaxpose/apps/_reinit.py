@@ -21,14 +21,13 @@ Plain numpy around the recognition front end (whose compiled programs are stored
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from ..features._keypoints import TexturedModel
-from ..features._vertices import image_primitives
+from ..features._vertices import MAX_VERTICES
 from ..geometry._validate import as_dist_coeffs, as_intrinsics, no_type_check
 from ._polyhedron import Polyhedron
 from ._symmetry import symmetries, turned
@@ -45,9 +44,6 @@ AGREE = 30.0
 #: trajectories 2 and 3), recognition found nothing with 60 and the prism within 0.1
 #: degree with 120 (1.7 and 4.5 s; 8 and 12 s with 200).
 MORE_VERTICES = 120
-
-#: The front end's own number of vertices kept (`image_primitives`'s default).
-_FRONT_END_VERTICES = inspect.signature(image_primitives).parameters["max_vertices"].default
 
 
 @no_type_check
@@ -99,7 +95,7 @@ def recognition_reinit(
         raise ValueError(f"more_vertices must be a positive int or None, got {more_vertices!r}")
     front_end = dict(options.pop("front_end", None) or {})
     tries = [front_end]
-    kept = front_end.get("max_vertices", _FRONT_END_VERTICES)
+    kept = front_end.get("max_vertices", MAX_VERTICES)
     if more_vertices is not None and more_vertices > kept:
         tries.append(front_end | {"max_vertices": more_vertices})
     K = as_intrinsics(camera_matrix, "camera_matrix")
@@ -113,7 +109,8 @@ def recognition_reinit(
             if pose.ok:
                 R_k = cv2.Rodrigues(pose.rvec)[0]
                 found = recognize(frame, [mesh], K, dist, front_end=tries[0], **options)
-                for d in found.detections[:1]:
+                if found.detections:
+                    d = found.detections[0]
                     R, t = np.asarray(d.R, np.float64), np.asarray(d.t, np.float64)
                     twins = [(R, t)] + [turned(R, t, S, c) for S, c in twin_turns]
                     near = min(twins, key=lambda p: _angle(p[0], R_k))

@@ -448,14 +448,18 @@ def track(
                     more = _keypoint_matches(grey8, keys, geo, K, dist, R_pred, t_pred, size)
                     measured = _Corners(np.vstack([corners.pixels, more.pixels]),
                                         np.vstack([corners.model, more.model]))  # fmt: skip
-                tried = _fit(grey, geo, K, dist, R_pred, t_pred, measured, contrasts, size,
-                             options)  # fmt: skip
-                tried = tried._replace(w_p=tried.w_p[: len(corners.pixels)])  # the KLT points'
+
+                kept = len(corners.pixels)  # (the KLT points' weights come first)
+
+                def fit_from(R0: np.ndarray, t0: np.ndarray) -> _Fit:
+                    out = _fit(grey, geo, K, dist, R0, t0, measured, contrasts, size, options)
+                    return out._replace(w_p=out.w_p[:kept])
+
+                tried = fit_from(R_pred, t_pred)
                 good = tried if _supported(tried, usual, options) else None
                 if good is None and R_pred is not pose[0]:
                     # the motion changed (the prism turning edge-on: 5-10 degrees off)
-                    again = _fit(grey, geo, K, dist, *pose, measured, contrasts, size, options)
-                    again = again._replace(w_p=again.w_p[: len(corners.pixels)])
+                    again = fit_from(*pose)
                     if _supported(again, usual, options):
                         tried = good = again
                 status = "tracked"

@@ -37,7 +37,17 @@ from ._segments import (
     segment_lengths,
 )
 
-__all__ = ["Primitives", "Vertices", "find_vertices", "image_primitives", "vertex_links"]
+__all__ = [
+    "MAX_VERTICES",
+    "Primitives",
+    "Vertices",
+    "find_vertices",
+    "image_primitives",
+    "vertex_links",
+]
+
+#: Image vertices `image_primitives` keeps by default (the best by score).
+MAX_VERTICES = 60
 
 _DEGREE = 3  # the most segments a vertex keeps
 
@@ -351,7 +361,7 @@ def image_primitives(
     radius: float = 8.0,
     min_angle: float = 20.0,
     coverage: float = 0.6,
-    max_vertices: int = 60,
+    max_vertices: int = MAX_VERTICES,
 ) -> Primitives:
     """The image front end for polyhedral objects: `detect_segments` (with `min_length`),
     `find_vertices` (with `radius`, `min_angle`, the `max_vertices` best kept),
