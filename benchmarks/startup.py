@@ -18,6 +18,10 @@ Every figure is measured in a fresh Python process (`spawn`), with the program c
   `jaxpose point --pixel 445 240` and `jaxpose recognize` of the box photograph (its
   mesh), each the median of `REPEATS` runs of its command after a first that builds the
   caches;
+- `cli_track`: `jaxpose track box.mp4 --init-pose POSE.json --frames 2` (the box's mesh,
+  the video's camera, re-initialisation by recognition as by default): the whole command
+  to its first tracked frame (the second frame's result) and its outputs, measured as
+  the commands above (the video's first pose: `BOX_POSE`);
 - `demo`: `make demo`'s command (`jaxpose reproduce --no-figures`) run twice, the second
   time with its caches built.
 
@@ -58,7 +62,16 @@ TARGETS = {
     "cli_solve": ("jaxpose solve bench.json, whole command, caches built", 2.0),
     "cli_point": ("jaxpose point --pixel 445 240, whole command, caches built", 2.0),
     "cli_recognize": ("jaxpose recognize, the box photograph, whole command, caches built", 2.0),
+    "cli_track": ("jaxpose track box.mp4 --init-pose: first tracked frame, caches built", 2.0),
     "demo_second": ("make demo (jaxpose reproduce), second run", 10.0),
+}
+
+
+#: The first pose of `box.mp4` (OpenCV's `rvec`, `tvec`, cm): the keypoint path's
+#: (`benchmarks/track_box.py`, `start_rvec` and `start_tvec` of its result).
+BOX_POSE = {
+    "rvec": [1.91258699, -1.26409631, 0.74108325],
+    "tvec": [21.43863207, 0.69211619, 152.12559535],
 }
 
 
@@ -189,7 +202,7 @@ def _median_run(spec: dict, cache: Path) -> dict:
 
 
 def _commands(cache: Path, work: Path) -> dict:
-    """`cli_solve`, `cli_point`, `cli_recognize` (module docstring)."""
+    """`cli_solve`, `cli_point`, `cli_recognize`, `cli_track` (module docstring)."""
     import numpy as np
 
     from jaxpose.apps import sample_path
@@ -204,10 +217,15 @@ def _commands(cache: Path, work: Path) -> dict:
         [str(exe), "solve", "--write-example", "bench.json"], cwd=work, check=True, timeout=600
     )
     recognize = [str(box / "resized_IMG_3875.JPG"), "--model", str(box / "box.ply")]
+    (work / "box_pose.json").write_text(json.dumps(BOX_POSE))
+    camera = str(box / "box_video_camera.yml")
+    track = [str(box / "box.mp4"), "--model", str(box / "box.ply"), "--camera", camera,
+             "--init-pose", "box_pose.json", "--frames", "2"]  # fmt: skip
     return {
         "cli_solve": _command(["solve", "bench.json", "--out", "pose.json"], cache, work),
         "cli_point": _command(["point", "--pixel", "445", "240"], cache, work),
         "cli_recognize": _command(["recognize", *recognize, "--camera", "camera.yml"], cache, work),
+        "cli_track": _command(["track", *track], cache, work),
     }
 
 
