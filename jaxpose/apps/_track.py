@@ -40,16 +40,13 @@ Distortion is removed from the measurements first (`cv2.undistortPoints`).
 Each frame's status is honest: a frame whose measurements do not support the pose
 (`TrackOptions`: too few weighted rows, too few of the visible edge samples matched,
 too short a length of matched edges (a small projection of the model fits clutter by
-chance), or the edges' residual far above the last tracked frames') is `"lost"` and
-holds the last pose; the next frames are fitted first with the KLT points carried
-through the lost frames (their model points those of the last frame held), from where
-they alone put the object: the edges an occluder leaves can leave a turn free, which
-the points pin down. Where that fit is not supported, they are fitted afresh from what
-an injected `reinit` finds (at most one try every `reinit_every` frames and
-`reinit_wait` seconds; e.g. recognition, `recognition_reinit`), with the model's
-half-turn symmetries (which edges alone cannot tell apart; the contrasts remembered from
-the last frame held pick one), and from the last pose held, until one is supported
-(`"reinitialised"`).
+chance; a KLT point followed from the last frame counts as two edge samples), or the
+edges' residual far above the last tracked frames') is `"lost"` and holds the last pose;
+the next frames are fitted afresh from what an injected `reinit` finds (at most one try
+every `reinit_every` frames and `reinit_wait` seconds; e.g. recognition,
+`recognition_reinit`), with the model's half-turn symmetries (which edges alone cannot
+tell apart; the contrasts remembered from the last frame held pick one), and from the
+last pose held, until one is supported (`"reinitialised"`).
 
 The measurements are numpy and OpenCV (one frame of 640 x 480 costs a few milliseconds,
 see `benchmarks/frontend.py`), the solve compiled. Each frame keeps its measurements with
@@ -270,20 +267,6 @@ def _fit(
     return fit
 
 
-def _moved(R, t, K, dist, corners: _Corners, options: TrackOptions) -> tuple:
-    """The pose `(R, t)` moved to where the KLT points `corners` alone put the object
-    (the solve on them only), or `(R, t)` itself where they give no pose (fewer than
-    three)."""
-    if len(corners.pixels) < 3:
-        return R, t
-    meas = Measurements(np.zeros((0, 3)), np.zeros((0, 3)), corners.model,
-                        _undistort(corners.pixels, K, dist))  # fmt: skip
-    moved = _solve(R, t, K, meas, options)
-    if moved.ok and np.all(np.isfinite(moved.t)):
-        return moved.R, moved.t
-    return R, t
-
-
 #: The fit of a frame on which nothing was tried.
 _NOTHING = _Fit(TrackedFrame(-1, np.eye(3), np.zeros(3), False, 0, 0, 0.0), _NO_CONTRAST,
                 np.zeros(0), 0.0, 0.0)  # fmt: skip
@@ -327,7 +310,9 @@ def _supported(fit: _Fit, usual: list[float], options: TrackOptions) -> bool:
     `min_rows`, `min_support`, `min_edge_length`, `max_rms_ratio`, `min_rms`)."""
     if not fit.result.ok or fit.support < options.min_support:
         return False
-    if options.use_edges and fit.result.edges * options.spacing < options.min_edge_length:
+    # (a KLT point followed from the last frame counts as two edge samples: two rows)
+    rows = fit.result.edges + 2 * fit.result.points
+    if options.use_edges and rows * options.spacing < options.min_edge_length:
         return False
     if not usual:
         return True
@@ -374,8 +359,7 @@ def track(
     - `options`: `TrackOptions`.
     - `reinit`: `reinit(frame, index) -> (R or rvec, t) or None`, a pose of the object
       in a frame found afresh (e.g. `recognition_reinit`: recognition from the mesh).
-      After a lost frame, each following frame whose fit with the KLT points carried
-      through the lost frames is not supported is fitted from the pose it gives (on
+      After a lost frame, each following frame is fitted from the pose it gives (on
       the frames `options.reinit_every` and `options.reinit_wait` allow), then from the
       last pose held, until one is supported (`"reinitialised"`); None: from the last
       pose held only (the object must come back near where it was lost).
@@ -443,23 +427,25 @@ def track(
             began = time.perf_counter()
             tried: _Fit | None = None  # the last fit made, reported when lost
             good: _Fit | None = None  # the fit the frame supports
-            # KLT points from the previous frame (also across lost frames: see below).
-            if previous is not None and len(corners.pixels) and options.use_points:
-                tracks = track_points(relit(previous, grey8), grey8, corners.pixels,
-                                      fb_threshold=options.fb_threshold)  # fmt: skip
-                corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
-            used = _NO_CORNERS  # the points the frame's fit took
             if pose is not None and last_seen is not None:  # tracking (the last frame held)
-                # The pose predicted.
+                # KLT points from the previous frame; the pose predicted.
+                if previous is not None and len(corners.pixels) and options.use_points:
+                    tracks = track_points(relit(previous, grey8), grey8, corners.pixels,
+                                          fb_threshold=options.fb_threshold)  # fmt: skip
+                    corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
                 R_pred, t_pred = pose
                 if options.predict == "velocity" and motion is not None:
                     R_pred, t_pred = (
                         _orthonormal(motion[0] @ R_pred),
                         motion[0] @ t_pred + motion[1],
                     )
-                elif options.predict == "velocity":
+                elif options.predict == "velocity" and len(corners.pixels) >= 3:
                     # No motion yet (just (re)initialised): the KLT points alone predict.
-                    R_pred, t_pred = _moved(R_pred, t_pred, K, dist, corners, options)
+                    meas = Measurements(np.zeros((0, 3)), np.zeros((0, 3)), corners.model,
+                                        _undistort(corners.pixels, K, dist))  # fmt: skip
+                    moved = _solve(R_pred, t_pred, K, meas, options)
+                    if moved.ok and np.all(np.isfinite(moved.t)):
+                        R_pred, t_pred = moved.R, moved.t
                 measured = corners
                 if keys is not None:  # the textured model's keypoints, near the prediction
                     more = _keypoint_matches(grey8, keys, geo, K, dist, R_pred, t_pred, size)
@@ -479,21 +465,8 @@ def track(
                     again = fit_from(*pose)
                     if _supported(again, usual, options):
                         tried = good = again
-                status, used = "tracked", corners
+                status = "tracked"
             else:
-                # First, the track carried on through the lost frames by the KLT points
-                # (their model points cast at the last frame held's pose), fitted from
-                # where they alone put the object: where it is supported it is taken, as
-                # a tracked frame's fit is (where the edges that an occluder leaves do not
-                # pin the pose down, the points do; the edges alone settle anywhere along
-                # what they leave free).
-                if index and pose is not None and len(corners.pixels):
-                    R_try, t_try = _moved(*pose, K, dist, corners, options)
-                    table = _remembered(memory, geo, R_try, t_try, options.grazing)
-                    tried = _fit(grey, geo, K, dist, R_try, t_try, corners, table, size,
-                                 options, options.init_rounds)  # fmt: skip
-                    if _supported(tried, usual, options):
-                        good, used = tried, corners
                 # (Re-)initialisation: from the given pose on the first frame; later from
                 # the pose the injected `reinit` gives (and its symmetric variants: the
                 # same edges, told apart by the contrasts remembered from the last frame
@@ -506,7 +479,7 @@ def track(
                     index - tried_at[0] >= options.reinit_every
                     and time.perf_counter() - tried_at[1] >= options.reinit_wait
                 )  # (throttled: `reinit_every` frames and `reinit_wait` s between tries)
-                if (index and reinit is not None or pose is None) and due and good is None:
+                if (index and reinit is not None or pose is None) and due:
                     found = reinit(frame, index) if reinit is not None else None
                     tried_at = (index, time.perf_counter())
                     if found is not None:
@@ -518,7 +491,7 @@ def track(
                         starts.append((R_found, t_found))
                         for S, c in symmetries if memory is not None else []:
                             starts.append(turned(R_found, t_found, S, c))
-                if index and pose is not None and good is None:
+                if index and pose is not None:
                     starts.append(pose)
                 best = (-1, -1)
                 for R_try, t_try in starts:
@@ -529,13 +502,12 @@ def track(
                     score = (np.count_nonzero(_expected(table, tried.table.keys)),
                              tried.result.edges)  # fmt: skip
                     if _supported(tried, usual, options) and (good is None or score > best):
-                        good, best, used = tried, score, _NO_CORNERS
+                        good, best = tried, score
                 status = "reinitialised" if usual else "initialised"
             if good is None:
-                # Lost: the pose held is the last supported one; what was carried is dropped
-                # but the KLT points, whose model points came from the last frame held.
+                # Lost: the pose held is the last supported one; what was carried is dropped.
                 status = "lost"
-                contrasts, last_seen, motion = _NO_CONTRAST, None, None
+                corners, contrasts, last_seen, motion = _NO_CORNERS, _NO_CONTRAST, None, None
             else:
                 R, t = good.result.R, good.result.t
                 if status == "tracked" and pose is not None:
@@ -548,9 +520,9 @@ def track(
                 sides = _sides(geo, R, t, options.grazing)
                 contrasts, last_seen = _unchanged(good.table, last_seen, sides), sides
                 memory = (contrasts, sides)
-                if len(used.pixels):  # those the solve kept
-                    corners = _Corners(used.pixels[good.w_p > 0], used.model[good.w_p > 0])
-                else:
+                if status == "tracked" and len(corners.pixels):  # those the solve kept
+                    corners = _Corners(corners.pixels[good.w_p > 0], corners.model[good.w_p > 0])
+                elif status != "tracked":
                     corners = _NO_CORNERS
                 if options.recast and len(corners.pixels):
                     hits = cast_rays(geo, K, dist, R, t, corners.pixels)
