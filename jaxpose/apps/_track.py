@@ -40,13 +40,13 @@ Distortion is removed from the measurements first (`cv2.undistortPoints`).
 Each frame's status is honest: a frame whose measurements do not support the pose
 (`TrackOptions`: too few weighted rows, too few of the visible edge samples matched,
 too short a length of matched edges (a small projection of the model fits clutter by
-chance; a KLT point followed from the last frame counts as two edge samples), or the
-edges' residual far above the last tracked frames') is `"lost"` and holds the last pose;
-the next frames are fitted afresh from what an injected `reinit` finds (at most one try
-every `reinit_every` frames and `reinit_wait` seconds; e.g. recognition,
-`recognition_reinit`), with the model's half-turn symmetries (which edges alone cannot
-tell apart; the contrasts remembered from the last frame held pick one), and from the
-last pose held, until one is supported (`"reinitialised"`).
+chance; a point measurement, a KLT point or a textured model's keypoint, counts as two
+edge samples), or the edges' residual far above the last tracked frames') is `"lost"`
+and holds the last pose; the next frames are fitted afresh from what an injected
+`reinit` finds (at most one try every `reinit_every` frames and `reinit_wait` seconds;
+e.g. recognition, `recognition_reinit`), with the model's half-turn symmetries (which
+edges alone cannot tell apart; the contrasts remembered from the last frame held pick
+one), and from the last pose held, until one is supported (`"reinitialised"`).
 
 The measurements are numpy and OpenCV (one frame of 640 x 480 costs a few milliseconds,
 see `benchmarks/frontend.py`), the solve compiled. Each frame keeps its measurements with
@@ -310,7 +310,7 @@ def _supported(fit: _Fit, usual: list[float], options: TrackOptions) -> bool:
     `min_rows`, `min_support`, `min_edge_length`, `max_rms_ratio`, `min_rms`)."""
     if not fit.result.ok or fit.support < options.min_support:
         return False
-    # (a KLT point followed from the last frame counts as two edge samples: two rows)
+    # (a point measurement counts as two edge samples: it gives two rows)
     rows = fit.result.edges + 2 * fit.result.points
     if options.use_edges and rows * options.spacing < options.min_edge_length:
         return False

@@ -61,9 +61,11 @@ class TrackOptions:
       face: 54-81% of its visible samples matched, as at the right pose (67-73%), but
       13-24 samples against 102-122), so a pose measured on less is not supported; the fraction
       alone cannot tell it from the true object, which has as many more samples as it
-      is larger. A KLT point followed from the last frame (a tracked frame's, not a
-      pose found afresh) counts as two samples: it gives two rows, and an occluder that
-      leaves fewer edges does not make a frame tracked on the points too a chance fit.
+      is larger. A point measurement with a weight (a KLT point followed from the last
+      frame, a textured model's keypoint matched near the prediction; a pose found afresh
+      is fitted on edges alone) counts as two samples: it gives two rows, and an occluder
+      that leaves fewer edges does not make a frame tracked on the points too a chance
+      fit.
     - `reinit_every`, `reinit_wait`: after a lost frame, `reinit` is tried on a frame
       only when at least `reinit_every` frames and `reinit_wait` seconds have passed
       since the end of its last try (the frames between are fitted from the last pose
