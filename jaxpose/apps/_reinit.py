@@ -28,6 +28,7 @@ import numpy as np
 
 from ..features._keypoints import TexturedModel
 from ..features._vertices import MAX_VERTICES
+from ..geometry._rotation import rotation_angle
 from ..geometry._validate import as_dist_coeffs, as_intrinsics, no_type_check
 from ._polyhedron import Polyhedron
 from ._symmetry import symmetries, turned
@@ -102,30 +103,33 @@ def recognition_reinit(
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
     twin_turns = symmetries(mesh_geometry(model)) if textured is not None else []
 
+    def mesh_pose(frame: np.ndarray, fronts: list[dict]) -> tuple[np.ndarray, np.ndarray] | None:
+        """The mesh's first detection in `frame`, with the front ends of `fronts` tried
+        in turn."""
+        for front in fronts:
+            found = recognize(frame, [mesh], K, dist, front_end=front, **options).detections
+            if found:
+                return np.asarray(found[0].R, np.float64), np.asarray(found[0].t, np.float64)
+        return None
+
     def reinit(frame: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:
         del index
         if textured is not None:
             pose = locate_textured(frame, textured, K, dist)
             if pose.ok:
                 R_k = cv2.Rodrigues(pose.rvec)[0]
-                found = recognize(frame, [mesh], K, dist, front_end=tries[0], **options)
-                if found.detections:
-                    d = found.detections[0]
-                    R, t = np.asarray(d.R, np.float64), np.asarray(d.t, np.float64)
-                    twins = [(R, t)] + [turned(R, t, S, c) for S, c in twin_turns]
+                found = mesh_pose(frame, tries[:1])
+                if found is not None:
+                    twins = [found] + [turned(*found, S, c) for S, c in twin_turns]
                     near = min(twins, key=lambda p: _angle(p[0], R_k))
                     if _angle(near[0], R_k) <= AGREE:
                         return near
                 return R_k, pose.tvec.reshape(3)
-        for front in tries:
-            found = recognize(frame, [mesh], K, dist, front_end=front, **options).detections
-            if found:
-                return np.asarray(found[0].R, np.float64), np.asarray(found[0].t, np.float64)
-        return None
+        return mesh_pose(frame, tries)
 
     return reinit
 
 
 def _angle(A: np.ndarray, B: np.ndarray) -> float:
-    """The angle (degrees) between two rotations."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(A @ B.T) - 1) / 2, -1.0, 1.0))))
+    """The angle (degrees) between two rotations (`rotation_angle` of `A B^T`)."""
+    return float(np.degrees(rotation_angle(A @ B.T)))

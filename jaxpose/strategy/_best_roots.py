@@ -323,6 +323,10 @@ def _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options: Opti
         )
         return e1 < e0, jnp.minimum(e0, e1)
 
+    def accepted_by(best):
+        """Whether that error (the largest float where neither converged) is accepted."""
+        return accepts(best < big, best, threshold(obs, best, options))
+
     def body(state):
         j, res = state
         # the partner of the answer of rounds 0 and 1 (used in round 2 only)
@@ -343,30 +347,19 @@ def _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options: Opti
 
     def more(state):
         j, res = state
-        best = lower_column(res)[1]  # (the largest float where neither converged)
-        accepted = accepts(best < big, best, threshold(obs, best, options))
-        partner = jnp.any(flat_model & accepted)
+        partner = jnp.any(flat_model & accepted_by(lower_column(res)[1]))
         return (j == 0) | ((j == 1) & jnp.any(flat_model)) | ((j == 2) & partner)
 
     table = jnp.zeros((3, _ROWS, started.shape[0]), dtype)
     rounds, table = jax.lax.while_loop(more, body, (jnp.int32(0), table))
-    # round 0's run stands in column 1 where round 1 never ran
-    table = table.at[1].set(jnp.where(rounds > 1, table[1], table[0]))
 
-    # 4. the lower converged error of the two columns, accepted as the mixed algorithm
-    def column(i):
-        return jnp.stack([table[0, i], table[1, i]], axis=1)
-
-    lin_error, lin_step = column(_ERROR), column(_STEP)
-    lin_status = column(_STATUS).astype(jnp.int32)
-    converged = started & (lin_status == Status.OK)
-    error = jnp.where(converged, lin_error, big)
-    thr = threshold(obs, jnp.min(error, axis=-1), options)
-    k = jnp.argmin(error, axis=-1)[:, None]
-    values = [column(_R + i) for i in range(12)] + [lin_error, converged, pick, lin_step]
-    got = [a[:, 0] for a in take_along(values, k, axis=1)]
-    error, converged_k, root, step = got[12:]
-    accepted = accepts(converged_k, error, thr)
+    # 4. the lower converged error of the two columns (column 1 is one only where it was
+    # started: a flat model, whose block ran round 1), accepted as the mixed algorithm
+    second, best = lower_column(table)
+    got = [jnp.where(second, table[1, i], table[0, i]) for i in range(_ROWS)]
+    converged_k, accepted = best < big, accepted_by(best)
+    error, step = got[_ERROR], got[_STEP]
+    root = jnp.where(second, pick[:, 1], pick[:, 0])
 
     # 5. the partner kept where it converges to a lower error
     partner = table[2]
@@ -377,7 +370,7 @@ def _two_attitudes(obs, m, triplets, R0, t0, started, pick, plane, options: Opti
     error = jnp.where(better, partner[_ERROR], error)
     step = jnp.where(better, partner[_STEP], step)
     pose = Pose(mat_to_array(R), vec_to_array(t))
-    first = jnp.where(started[:, 0], lin_status[:, 0], Status.NO_SOLUTION)
+    first = jnp.where(started[:, 0], table[0, _STATUS].astype(jnp.int32), Status.NO_SOLUTION)
     return _best(
         pose, error, accepted, Status.ACCEPTED_LINEAR, converged_k, first, triplets, root, step
     )
