@@ -22,6 +22,7 @@ from ..strategy import (
     Solution,
     escalation,
     resolve,
+    rung_applies,
     solve_problems,
     split_values,
     with_values,
@@ -221,23 +222,68 @@ def _stored(
         out = program(_stored_program_from, options, single)(*args, *start)
         return out if rows == B else jax.tree.map(lambda x: x[:B], out)
     rungs = escalation(options)
-    # The first rung's own program (a third of the whole one: quicker to load and to
-    # run); the whole escalation only when it leaves a problem without a pose. Where the
-    # first rung accepts every problem, the two give the same answer.
+    # The first rung's own program for every problem; each later rung's only for the
+    # problems the rungs before it left (`_climb`).
     out = program(_stored_program, rungs[0], single)(*args)
-    if len(rungs) > 1 and _escalates(out.accepted, args, B):
-        out = program(_stored_program, options, single)(*args)
+    if single:  # one problem: the later rungs' programs of one problem
+
+        def one(rung, a):
+            return _lifted(program(_stored_program, rung, True)(*a))
+
+        return jax.tree.map(lambda x: x[0], _climb(_lifted(out), args, B, rungs[1:], one))
+
+    def many(rung, a):
+        return program(_stored_program, rung, False)(*a)
+
+    out = _climb(out, args, B, rungs[1:], many)
     return out if rows == B else jax.tree.map(lambda x: x[:B], out)
 
 
-def _escalates(accepted, args, B: int) -> bool:
-    """Whether the first rung left one of the `B` problems of `args` (`_padded`'s) without
-    a pose: the whole escalation runs then. A problem with non-finite inputs has its
-    placeholder answer from every rung (`jaxpose.strategy.finite_inputs`): it needs none."""
-    _, camera, model, image, _ = args
+def _lifted(tree):
+    """`tree` with a leading axis of one."""
+    return jax.tree.map(lambda x: x[None], tree)
+
+
+def _climb(out, args, B: int, later, run, solution=lambda o: o):
+    """The later rungs of the escalation (`later`) after the first rung's answers `out`
+    (a pytree of arrays with a leading problem axis; `solution(out)` its `Solution`) on
+    `_padded`'s `args`: each rung runs (`run(rung, its_args)`: its stored program) only
+    on the problems of finite input that the rungs before it left without a pose and to
+    which it applies (`rung_applies`), gathered and padded to their bucket
+    (`bucket_problems`); its answers replace theirs where it accepts, the last rung's
+    wherever it ran. So a batch's cost follows the problems that need each rung, and a
+    rung that no problem reaches is neither compiled nor run."""
+    values, camera, model, image, mask = args
+    need = ~np.asarray(solution(out).accepted).reshape(-1) & _finite_rows(camera, model, image)
+    need[B:] = False
+    if not later or not need.any():
+        return out
+    out = jax.tree.map(np.array, out)  # (copies: written in place below)
+    used = mask.sum(axis=1)
+    for k, rung in enumerate(later, start=1):
+        rows = np.flatnonzero(need & rung_applies(rung, used))
+        if not rows.size:
+            continue
+        pad = bucket_problems(rows.size) - rows.size
+        pick = np.concatenate([rows, np.repeat(rows[-1:], pad)])
+        cameras = camera if camera.ndim == 2 else camera[pick]
+        found = run(rung, (values, cameras, model[pick], image[pick], mask[pick]))
+        found = jax.tree.map(lambda x: np.asarray(x)[: rows.size], found)
+        last = k == len(later)
+        keep = np.ones(rows.size, bool) if last else np.asarray(solution(found).accepted)
+        for whole, part in zip(jax.tree.leaves(out), jax.tree.leaves(found), strict=True):
+            whole[rows[keep]] = part[keep]
+        need[rows[keep]] = False
+    return jax.device_put(out)  # (not `jnp.asarray`: traced inside a derivative's rule)
+
+
+def _finite_rows(camera, model, image) -> np.ndarray:
+    """Which problems of `_padded`'s arrays have finite inputs only (the others have their
+    placeholder answer from every rung, `jaxpose.strategy.finite_inputs`: they need
+    none)."""
     finite = np.isfinite(model).all(axis=(1, 2)) & np.isfinite(image).all(axis=(1, 2))
-    finite &= np.isfinite(camera).reshape(-1 if camera.ndim == 3 else 1, 12).all(axis=1)
-    return not np.all(np.asarray(accepted).reshape(-1)[:B] | ~finite[:B])
+    cam = np.isfinite(camera).reshape(-1 if camera.ndim == 3 else 1, 12).all(axis=1)
+    return finite & cam
 
 
 def _padded(camera, model, image, mask, values, start):
@@ -427,15 +473,18 @@ def _instantiated(t):
 
 def _answer_and_jacobian(camera, model, image, mask, options: Options, values, start):
     """The `Solution` of `B` problems and its `_Jacobian` (numpy arrays), from the
-    stored derivative programs (as `_stored`: the first rung's, the whole escalation's
-    when it leaves a problem without a pose), cut back to the problems and points
+    stored derivative programs (as `_stored`: the first rung's, then each later rung's
+    for the problems left without a pose, `_climb`), cut back to the problems and points
     given."""
     args, start, B = _padded(camera, model, image, mask, values, start)
     n = np.shape(model)[1]
     rungs = escalation(options) if start is None else (options,)
-    out, jac = program(_derivative_program, rungs[0])(*args, start)
-    if len(rungs) > 1 and _escalates(out.accepted, args, B):
-        out, jac = program(_derivative_program, options)(*args, start)
+    first = program(_derivative_program, rungs[0])(*args, start)
+
+    def run(rung, a):
+        return program(_derivative_program, rung)(*a, None)
+
+    out, jac = _climb(first, args, B, rungs[1:], run, solution=lambda o: o[0])
     out = jax.tree.map(lambda x: np.asarray(x)[:B], out)
     jac = _Jacobian(*(np.asarray(x)[:B] for x in jac))
     return out, _Jacobian(jac.camera, jac.model[:, :, :n], jac.image[:, :, :n])

@@ -88,8 +88,7 @@ def warm_up_plan(
             plan.append((f"{name}, {n} points", build))
 
         key, values = split_values(options)
-        rungs = escalation(key)
-        keys = [rungs[0]] + ([key] if len(rungs) > 1 else [])
+        keys = escalation(key)  # one program per rung, as a plain `solve` runs them
         for k, solve_key in enumerate(keys):
 
             def build_solve(n=n, solve_key=solve_key) -> bool:
@@ -101,9 +100,9 @@ def warm_up_plan(
                     prog.executable(values, K, *shapes)
                 return prog.compiled > before
 
-            what = "solve" if k == 0 else "solve, the whole escalation"
+            what = "solve" if k == 0 else f"solve, rung {k + 1}"
             plan.append((f"{what}, {n} points", build_solve))
-        if gradients:  # the first rung's: the whole escalation's compiles on first use
+        if gradients:  # the first rung's: the later rungs' compile on first use
 
             def build_gradient(n=n, solve_key=keys[0]) -> bool:
                 prog = program(_derivative_program, solve_key)
