@@ -26,7 +26,7 @@ from ._pnp import (
     _values,
 )
 from ._programs import POINT_BUCKETS, Program, bucket_points, program
-from ._solve import _derivative_program, _stored_program
+from ._stored import _derivative_program, _stored_program, values_only
 
 __all__ = ["DEFAULT_BATCHES", "DEFAULT_POINTS", "Built", "warm_up", "warm_up_plan"]
 
@@ -69,7 +69,7 @@ def warm_up_plan(
     """The programs `warm_up` builds, as `(description, build)` pairs: `build()` compiles
     the program (or loads it) and returns whether it compiled. `gradients`: the program
     of a plain `jax.grad` (`jax.jacrev`, `jax.jacfwd`, `jax.jvp`) of `solve` too, the
-    answer and its Jacobian (`jaxpose.api._solve._derivative_program`; its first rung's,
+    answer and its Jacobian (`jaxpose.api._stored._derivative_program`; its first rung's,
     which a problem accepted there runs)."""
     options = Options() if options is None else options
     plan: list[tuple[str, Callable[[], bool]]] = []
@@ -88,7 +88,7 @@ def warm_up_plan(
             plan.append((f"{name}, {n} points", build))
 
         key, values = split_values(options)
-        keys = escalation(key)  # one program per rung, as a plain `solve` runs them
+        keys = escalation(values_only(key))  # a program a rung, as a plain `solve` runs
         for k, solve_key in enumerate(keys):
 
             def build_solve(n=n, solve_key=solve_key) -> bool:

@@ -1,5 +1,5 @@
 """A plain `jax.grad` (`jax.jacrev`, `jax.jacfwd`, `jax.jvp`) of `jaxpose.solve` runs a
-stored program (`jaxpose.api._solve._stored_derivative`): the same derivative as the
+stored program (`jaxpose.api._stored._stored_derivative`): the same derivative as the
 traced path's, and a new process loads it instead of tracing the pipeline.
 
 Every problem here is of the 16-point bucket, float64: one stored derivative program
@@ -19,7 +19,8 @@ import pytest
 import jaxpose as jp
 from jaxpose.api import _programs
 from jaxpose.api import _solve as solve_module
-from jaxpose.api._solve import _derivative_program
+from jaxpose.api._stored import _derivative_program
+from jaxpose.strategy import escalation, split_values
 
 SIZE = 16
 
@@ -76,9 +77,7 @@ def _problem(seed: int, n: int = SIZE):
 
 
 def _stored_program():
-    return _programs.program(
-        _derivative_program, solve_module.escalation(solve_module.split_values(jp.Options())[0])[0]
-    )
+    return _programs.program(_derivative_program, escalation(split_values(jp.Options())[0])[0])
 
 
 @pytest.mark.parametrize(

@@ -94,7 +94,7 @@ def test_the_solve_is_jaxpose_solve_and_its_stored_program(capsys, monkeypatch):
     assert rc == 0, out
     assert calls == [{}]  # the default options: jaxpose.solve's own program
     names = [p.name for p in _programs._PROGRAMS.values()]
-    assert any(name.startswith("jaxpose.api._solve._stored_program(") for name in names)
+    assert any(name.startswith("jaxpose.api._stored._stored_program(") for name in names)
     assert any(name.startswith("jaxpose.cli._point._point_run(") for name in names)
     # the point printed is the pick from jaxpose.solve's answer
     sol = real(BENCH.camera, BENCH.model_points, BENCH.image_points)

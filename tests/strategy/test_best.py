@@ -152,24 +152,28 @@ def test_wider_rung_settles_what_the_spread_roots_leave():
 def test_a_plain_call_runs_each_later_rung_on_the_problems_it_needs():
     """A plain `solve_many` (concrete arrays: the stored programs) runs the first rung on
     every problem and each later rung only on the problems the rungs before it left,
-    gathered into a program of their own size: here the 2 of 12 problems whose spread
-    matches are collinear climb to the middle rung, which settles them; the last rung's
-    program is neither built nor run. The answers are the whole mixed algorithm's."""
+    gathered into a program of their own size: here the problems whose spread matches
+    are collinear climb to the middle rung, which settles them; the last rung's program
+    is neither built nor run. The programs are the values-only ones (nothing
+    differentiates a plain call). The answers are the whole mixed algorithm's."""
     from jaxpose.api._programs import program
-    from jaxpose.api._solve import _stored_program, split_values
+    from jaxpose.api._stored import _stored_program, bucket_problems, values_only
+    from jaxpose.strategy import split_values
 
-    hard, easy = _collinear_spread(2, seed=4, inner=6), _problems("ordinary", 13, 10, 1.0, 3)
+    hard, easy = _collinear_spread(3, seed=4, inner=6), _problems("ordinary", 13, 9, 1.0, 3)
     C, M, I = (np.concatenate([e, h]) for e, h in zip(easy, hard, strict=True))
-    rungs = escalation(split_values(jp.Options())[0])
+    left = ~np.asarray(jp.solve_many(C, M, I, fallback=False).accepted)  # the first rung
+    assert 1 <= left.sum() and not left[:9].any()
+    rungs = escalation(values_only(split_values(jp.Options())[0]))  # (what it runs)
     programs = [program(_stored_program, rung, False) for rung in rungs]
     before = [set(p._memo) for p in programs]
     out = jp.solve_many(C, M, I)
     new = [set(p._memo) - b for p, b in zip(programs, before, strict=True)]
     rows = [{signature[3][0][0] for signature in n} for n in new]  # (the model's shape)
-    assert rows[1:] == [{2}, set()] and rows[0] <= {16}
+    assert rows[1:] == [{bucket_problems(int(left.sum()))}, set()] and rows[0] <= {16}
     full = _many(None)(*_padded(C, M, I))
     assert np.all(np.asarray(out.accepted)) and np.all(np.asarray(full.accepted))
-    assert np.all(np.max(np.asarray(out.triplet[10:]), axis=1) >= 4)
+    assert np.all(np.max(np.asarray(out.triplet[left]), axis=1) >= 4)
     np.testing.assert_allclose(out.error, full.error, rtol=1e-9)
     np.testing.assert_allclose(out.pose.R, full.pose.R, atol=1e-9)
     np.testing.assert_allclose(out.pose.t, full.pose.t, rtol=1e-6, atol=1e-6)
