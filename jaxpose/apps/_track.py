@@ -79,6 +79,7 @@ from ._visibility import (
     face_mask,
     facing,
     mesh_geometry,
+    project,
 )
 
 __all__ = ["TrackedFrame", "track"]
@@ -162,9 +163,13 @@ def _expected(table: _Contrasts, keys: np.ndarray, reach: float = 0.05) -> np.nd
     return np.where(same, table.values[j], 0.0)
 
 
-def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, options):
+def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, options, last=None):
     samples = edge_samples(geo, K, dist, R, t, spacing=options.spacing, image_size=size,
                            margin=search + 2.0, grazing=options.grazing)  # fmt: skip
+    smear = None  # (each sample's motion along its normal since the last frame held)
+    if last is not None and options.exposure > 0:
+        before = project(samples.points @ last[0].T + last[1], K, dist)
+        smear = options.exposure * np.abs(((samples.pixels - before) * samples.normals).sum(1))
     ends = np.asarray(geo.model.edges)[samples.edge]
     a, b = geo.model.vertices[ends[:, 0]], geo.model.vertices[ends[:, 1]]
     frac = ((samples.points - a) * (b - a)).sum(axis=1) / np.maximum(
@@ -174,7 +179,7 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
     found = moving_edges(grey, samples.pixels, samples.normals, search=search,
                          threshold=options.threshold, mask=samples.visible,
                          contrast=_expected(contrasts, keys), choose=options.choose,
-                         ratio=options.ratio)  # fmt: skip
+                         ratio=options.ratio, smear=smear)  # fmt: skip
     wanted = samples.visible & (samples.outline | (options.edges == "all"))
     keep = found.valid & wanted
     q = found.matched[keep]
@@ -227,12 +232,12 @@ class _Fit(NamedTuple):
     judged: float
 
 
-def _fit(
-    grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options, rounds: int | None = None
-) -> _Fit:
+def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options,
+         rounds: int | None = None, last=None) -> _Fit:  # fmt: skip
     """The pose of one frame from `(R, t)`: edges measured and the pose solved,
     `rounds` times at most (`options.rounds`; the search range shrinking), with the KLT
-    points given."""
+    points given; `last`, the last frame's pose, sets how far each edge smeared
+    (`options.exposure`)."""
     points_px = _undistort(corners.pixels, K, dist)
     fit = _Fit(TrackedFrame(-1, R, t, False, 0, 0, 0.0), _NO_CONTRAST,
                np.zeros(len(points_px)), 0.0, 0.0)  # fmt: skip
@@ -240,7 +245,7 @@ def _fit(
         search = options.search if round_ == 0 else options.refine_search
         if options.use_edges:
             e_model, e_lines, e_index, e_strength, wanted = _edge_measurements(
-                grey, geo, K, dist, R, t, size, search, contrasts, options
+                grey, geo, K, dist, R, t, size, search, contrasts, options, last
             )
         else:
             e_model, e_lines = np.zeros((0, 3)), np.zeros((0, 3))
@@ -455,7 +460,8 @@ def track(
                 kept = len(corners.pixels)  # (the KLT points' weights come first)
 
                 def fit_from(R0: np.ndarray, t0: np.ndarray) -> _Fit:
-                    out = _fit(grey, geo, K, dist, R0, t0, measured, contrasts, size, options)
+                    out = _fit(grey, geo, K, dist, R0, t0, measured, contrasts, size, options,
+                               last=pose)  # fmt: skip
                     return out._replace(w_p=out.w_p[:kept])
 
                 tried = fit_from(R_pred, t_pred)

@@ -175,6 +175,8 @@ def test_bad_arguments():
         TrackOptions(min_support=1.5)
     with pytest.raises(ValueError, match="options.max_rms_ratio"):
         TrackOptions(max_rms_ratio=0.5)
+    with pytest.raises(ValueError, match="options.exposure"):
+        TrackOptions(exposure=1.5)
     with pytest.raises(ValueError, match="reinit"):
         track([], GEO, K, None, None)
     with pytest.raises(ValueError, match="reinit"):
