@@ -13,7 +13,6 @@ and it is distinct from those kept before it.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import cv2
@@ -39,6 +38,7 @@ from ..strategy import (
 )
 from ._pnp import answer_opencv, opencv_problem, refine_opencv
 from ._programs import bucket_points, program
+from ._stored import values_only
 
 __all__ = ["minima", "solve_pnp_generic"]
 
@@ -164,7 +164,7 @@ def _stored_minima(camera, model, image, mask, R, t, options: Options) -> Minima
         return np.concatenate([x, fill])
 
     model, image, mask = (points(x) for x in (model, image, mask))
-    key, values = split_values(dataclasses.replace(options, derivative=False))
+    key, values = split_values(values_only(options))
     args = (values, camera, model, image, mask, R, t)
     args = tuple(np.asarray(a, dtype) if a is not mask else a for a in args)
     return program(_minima_program, key)(*args)

@@ -43,7 +43,6 @@ from ..strategy import (
     escalation,
     resolve,
     robust,
-    rung_applies,
     split_values,
     triplet_indices,
     with_values,
@@ -51,6 +50,7 @@ from ..strategy import (
 from ._batch import run_batched
 from ._programs import bucket_points, program, stored_jit
 from ._solve import solve, solve_many
+from ._stored import climb, values_only
 
 __all__ = ["solve_pnp", "solve_pnp_batch", "solve_pnp_ransac"]
 
@@ -187,7 +187,7 @@ def _stages(options: Options) -> tuple[Options, ...]:
     (`derivative=False`: the numpy outputs carry no derivative). Each is a program's key
     (`jaxpose.strategy.split_values`): the thresholds and tolerances are the program's
     arguments (`_values`), so that changing them compiles nothing."""
-    rungs = escalation(dataclasses.replace(options, derivative=False))
+    rungs = escalation(values_only(options))
     return tuple(split_values(rung)[0] for rung in rungs)
 
 
@@ -296,19 +296,18 @@ def answer_opencv(problem: OpenCVProblem) -> np.ndarray:
         packed = np.concatenate([_values(options), _pack(K, obj, problem.img, mask)])
         if problem.guess is not None:
             packed = np.concatenate([packed[:4], problem.guess, packed[4:]])
-            key = split_values(dataclasses.replace(options, derivative=False))[0]
+            key = split_values(values_only(options))[0]
             out = np.array(program(_solve_opencv_from, key)(packed))
             rungs = rungs[:1]
         else:
             out = np.array(program(_solve_opencv, rungs[0])(packed))
-        for k, rung in enumerate(rungs[1:], start=2):
-            if out[0]:
-                break
-            if not rung_applies(rung, mask.sum()):
-                continue
-            again = np.array(program(_solve_opencv, rung)(packed))
-            if again[0] or k == len(rungs):  # the last rung's answer stands
-                out = again
+
+        def later(rung, rows):  # (one problem: its vector as a batch of one)
+            return np.array(program(_solve_opencv, rung)(packed))[None]
+
+        lifted = out[None]
+        climb(lifted, lifted[:, 0] == 0, mask.sum()[None], rungs[1:], later, lambda f: f[:, 0])
+        out = lifted[0]
         if problem.dist is not None and out[0] and options.method != "three_point":
             # the pose that minimises the error in the image, as OpenCV's
             out[1:] = refine_opencv(problem, out[1:4], out[4:7])
@@ -449,15 +448,12 @@ def solve_pnp_batch(
             )
 
         ok, rvecs, tvecs = run(obj, img, mask, rungs[0], CHUNK, MIN_CHUNK)
-        for k, rung in enumerate(rungs[1:], start=2):
-            need = np.flatnonzero(~np.asarray(ok) & rung_applies(rung, mask.sum(axis=1)))
-            if not need.size:
-                continue
-            # the problems the rungs before did not settle
-            redo = run(obj[need], img[need], mask[need], rung, FALLBACK_CHUNK, 1)
-            keep = np.ones(need.size, bool) if k == len(rungs) else np.asarray(redo[0])
-            for out, part in zip((ok, rvecs, tvecs), redo, strict=True):
-                out[need[keep]] = np.asarray(part)[keep]
+
+        def later(rung, rows):  # the problems the rungs before did not settle
+            return run(obj[rows], img[rows], mask[rows], rung, FALLBACK_CHUNK, 1)
+
+        need = ~np.asarray(ok)
+        climb((ok, rvecs, tvecs), need, mask.sum(axis=1), rungs[1:], later, lambda f: f[0])
         if dist is not None and options.method != "three_point":
             # the poses that minimise the error in the image, as OpenCV's
             rv, tv = run_batched(

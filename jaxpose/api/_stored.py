@@ -20,7 +20,7 @@ from ..geometry import Pose
 from ..strategy import Options, Solution, escalation, rung_applies, solve_problems, with_values
 from ._programs import bucket_points, program
 
-__all__: list[str] = []
+__all__ = ["climb", "values_only"]
 
 
 def _with_values(values, camera, model, image, mask, start, options: Options) -> Solution:
@@ -61,20 +61,16 @@ def _stored(
         out = program(_stored_program_from, options, single)(*args, *start)
         return out if rows == B else jax.tree.map(lambda x: x[:B], out)
     rungs = escalation(options)
+
+    def run(rung, a):  # (one problem: its answer lifted to a batch of one)
+        found = program(_stored_program, rung, single)(*a)
+        return _lifted(found) if single else found
+
     # The first rung's own program for every problem; each later rung's only for the
     # problems the rungs before it left (`_climb`).
-    out = program(_stored_program, rungs[0], single)(*args)
-    if single:  # one problem: the later rungs' programs of one problem
-
-        def one(rung, a):
-            return _lifted(program(_stored_program, rung, True)(*a))
-
-        return jax.tree.map(lambda x: x[0], _climb(_lifted(out), args, B, rungs[1:], one))
-
-    def many(rung, a):
-        return program(_stored_program, rung, False)(*a)
-
-    out = _climb(out, args, B, rungs[1:], many)
+    out = _climb(run(rungs[0], args), args, B, rungs[1:], run)
+    if single:
+        return jax.tree.map(lambda x: x[0], out)
     return out if rows == B else jax.tree.map(lambda x: x[:B], out)
 
 
@@ -95,36 +91,47 @@ def _lifted(tree):
 
 
 def _climb(out, args, B: int, later, run, solution=lambda o: o):
-    """The later rungs of the escalation (`later`) after the first rung's answers `out`
-    (a pytree of arrays with a leading problem axis; `solution(out)` its `Solution`) on
-    `_padded`'s `args`: each rung runs (`run(rung, its_args)`: its stored program) only
-    on the problems of finite input that the rungs before it left without a pose and to
-    which it applies (`rung_applies`), gathered and padded to their bucket
-    (`bucket_problems`); its answers replace theirs where it accepts, the last rung's
-    wherever it ran. So a batch's cost follows the problems that need each rung, and a
-    rung that no problem reaches is neither compiled nor run."""
+    """The later rungs of the escalation (`later`, `climb`) after the first rung's answers
+    `out` (a pytree of arrays with a leading problem axis; `solution(out)` its
+    `Solution`) on `_padded`'s `args`, for the first `B` problems of finite input: each
+    rung's stored program (`run(rung, its_args)`) on the problems that need it, gathered
+    and padded to their bucket (`bucket_problems`)."""
     values, camera, model, image, mask = args
     need = ~np.asarray(solution(out).accepted).reshape(-1) & _finite_rows(camera, model, image)
     need[B:] = False
     if not later or not need.any():
         return out
-    out = jax.tree.map(np.array, out)  # (copies: written in place below)
-    used = mask.sum(axis=1)
+
+    def rung_rows(rung, rows):
+        pick = np.concatenate([rows, np.repeat(rows[-1:], bucket_problems(rows.size) - rows.size)])
+        cameras = camera if camera.ndim == 2 else camera[pick]
+        return run(rung, (values, cameras, model[pick], image[pick], mask[pick]))
+
+    out = jax.tree.map(np.array, out)  # (copies: written in place)
+    climb(out, need, mask.sum(axis=1), later, rung_rows, lambda f: solution(f).accepted)
+    return jax.device_put(out)  # (not `jnp.asarray`: traced inside a derivative's rule)
+
+
+def climb(out, need, used, later, run, accepted) -> None:
+    """The escalation's later rungs (`later`) on the problems `need` marks, after the first
+    rung: each rung runs (`run(rung, rows)`: its answers for the problems `rows`, a pytree
+    like `out` whose leading axis starts with them) only on the problems still in need
+    to which it applies (`rung_applies`, on their `used` matches); its answers replace
+    theirs in `out` (numpy arrays, written in place) where it accepts (`accepted(found)`),
+    the last rung's wherever it ran. So a batch's cost follows the problems that need
+    each rung, and a rung no problem reaches is neither compiled nor run. The rule of
+    every numpy-level caller: a plain `solve` / `solve_many`, `solve_pnp`,
+    `solve_pnp_batch`."""
+    need = np.array(need, bool)
     for k, rung in enumerate(later, start=1):
         rows = np.flatnonzero(need & rung_applies(rung, used))
         if not rows.size:
             continue
-        pad = bucket_problems(rows.size) - rows.size
-        pick = np.concatenate([rows, np.repeat(rows[-1:], pad)])
-        cameras = camera if camera.ndim == 2 else camera[pick]
-        found = run(rung, (values, cameras, model[pick], image[pick], mask[pick]))
-        found = jax.tree.map(lambda x: np.asarray(x)[: rows.size], found)
-        last = k == len(later)
-        keep = np.ones(rows.size, bool) if last else np.asarray(solution(found).accepted)
+        found = jax.tree.map(lambda x: np.asarray(x)[: rows.size], run(rung, rows))
+        keep = np.ones(rows.size, bool) if k == len(later) else np.asarray(accepted(found), bool)
         for whole, part in zip(jax.tree.leaves(out), jax.tree.leaves(found), strict=True):
             whole[rows[keep]] = part[keep]
         need[rows[keep]] = False
-    return jax.device_put(out)  # (not `jnp.asarray`: traced inside a derivative's rule)
 
 
 def _finite_rows(camera, model, image) -> np.ndarray:
