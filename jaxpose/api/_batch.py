@@ -173,9 +173,11 @@ def run_batched(
       problem, so every chunk has one shape (one compilation).
     - `devices`: see `batch_devices` (default: all devices). With one device the chunks
       run as plain jitted calls; with several, each chunk is split over them.
-    - `min_tail`: `None` (the last chunk is padded to `chunk_size`), or a size: the last
-      chunk is padded only to the smallest `min_tail * 2^k` that holds it (a few more
-      compiled shapes, less padding for a remainder much smaller than the chunk).
+    - `min_tail`: `None` (the last chunk is padded to `chunk_size`; a batch of fewer
+      problems than that runs as it is, a program per batch size), or a size: the last
+      chunk, or a batch smaller than a chunk, is padded only to the smallest
+      `min_tail * 2^k` that holds it (a few compiled shapes in all, whatever the batch
+      sizes, and less padding for a remainder much smaller than the chunk).
 
     **Returns:** `fn`'s output pytree as numpy arrays of `B` rows (on every process).
 
@@ -199,7 +201,9 @@ def run_batched(
     else:
         trailing, keywords = tuple(static), ()
     k = len(devs)
-    chunk = min(B, chunk_size or B)
+    # With `min_tail`, a batch smaller than a chunk is padded like a tail (to a bucket of
+    # sizes, one compiled program for every batch size in it); without, it runs whole.
+    chunk = (chunk_size or B) if min_tail is not None else min(B, chunk_size or B)
     chunk = math.ceil(chunk / k) * k
     if k == 1:
         mesh, row_sharding, whole = None, None, None

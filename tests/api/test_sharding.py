@@ -167,6 +167,29 @@ def test_run_batched_chunks_equal_one_call(chunk_size):
         np.testing.assert_array_equal(a, b)
 
 
+def _padded_size(x):
+    """Each row: the number of rows of the call it ran in (padding included), and x."""
+    return jnp.full(x.shape[:1], x.shape[0]), x
+
+
+@pytest.mark.parametrize(
+    ("rows", "sizes"),
+    [(1, {16}), (5, {16}), (16, {16}), (17, {32}), (50, {64}), (100, {64}), (150, {64, 32})],
+)
+def test_run_batched_pads_a_small_batch_to_its_bucket(rows, sizes):
+    """With `min_tail`, a batch smaller than a chunk runs padded to the smallest
+    `min_tail * 2^k` that holds it, as a last chunk does (one program for every batch
+    size of a bucket: `solve_pnp_batch` compiles none for 7 problems after 5), and the
+    padding rows are dropped."""
+    x = np.arange(rows, dtype=np.float64)
+    size, out = jp.api.run_batched(_padded_size, (), (x,), chunk_size=64, min_tail=16)
+    assert set(size.tolist()) == sizes
+    np.testing.assert_array_equal(out, x)
+    # without `min_tail`: the batch as it is, chunks padded to the chunk size
+    size, _ = jp.api.run_batched(_padded_size, (), (x,), chunk_size=64)
+    assert set(size.tolist()) == ({rows} if rows <= 64 else {64})
+
+
 def test_run_batched_static_arguments():
     def scaled(x, factor, *, offset):
         return x * factor + offset
