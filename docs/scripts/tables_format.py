@@ -64,7 +64,10 @@ def machine(data: dict) -> str:
     m = dict(m) if isinstance(m, dict) else {"platform": m} if m else {}
     parts = []
     if m.get("cpu"):
-        parts.append(str(m["cpu"]))
+        # the widest vector instructions recorded (`benchmarks._harness.machine`): the
+        # machines here come with AVX-512 or with AVX2 only, and the figures differ
+        simd = {"avx512f": "AVX-512", "avx2": "AVX2 only"}.get(m.get("simd") or "")
+        parts.append(str(m["cpu"]) + (f" with {simd}" if simd else ""))
     cores = m.get("cores", m.get("cpu_count", data.get("cpu_count")))
     if cores:
         parts.append(f"{cores} cores")

@@ -139,21 +139,36 @@ def speed_batch(results: Path) -> str:
 
 def speed_classes(results: Path) -> str:
     """`solve_pnp_batch` on each problem class at two batch sizes (the `classes`
-    section of `benchmarks/speed.py`)."""
-    # the full run's, else the run of this section alone (`--sections classes`)
-    names = ("speed.json", "speed_partial.json", "speed_quick.json")
-    d, name = {}, names[0]
-    for name in names:
-        try:
-            d, name = load(results, name)
-        except Missing:
-            continue
-        if "classes" in d:
+    section of `benchmarks/speed.py`): a table for each saved run that has it (the full
+    run's and that of the section alone, `--sections classes`, often on another kind of
+    machine), else the quick run's."""
+    runs = []
+    for names in (("speed.json", "speed_partial.json"), ("speed_quick.json",)):
+        for name in names:
+            try:
+                d, _ = load(results, name)
+            except Missing:
+                continue
+            if "classes" in d:
+                runs.append((d, name))
+        if runs:
             break
-    if "classes" not in d:
-        raise Missing(f"the `classes` section in `benchmarks/results/{names[0]}`")
+    if not runs:
+        raise Missing("the `classes` section in `benchmarks/results/speed.json`")
+    T = runs[0][0]["targets"]
+    note = (
+        "`solve_pnp_batch` with its default options on each problem class of the accuracy "
+        "protocol (n = 16, 1 px) and on the bench's own model at random poses (its 16 "
+        "matched vertices, 0.7 px), against the loop of `cv2.solvePnP` (SQPNP) and "
+        "`solvePnPRefineLM` over the same problems. Growth: the time per problem at the "
+        f"larger batch over the smaller (target <= {T['classes_growth']['target']:g}x); "
+        f"ratio target >= {T['classes_vs_loop']['target']:g}x on every class."
+    )
+    return "\n\n".join([note, *(_classes_table(d, name) for d, name in runs)])
+
+
+def _classes_table(d: dict, name: str) -> str:
     small, large = d["classes"]["sizes"]
-    T = d["targets"]
     rows = []
     for kind, r in d["classes"]["classes"].items():
         lo, hi = r[str(small)], r[str(large)]
@@ -177,16 +192,8 @@ def speed_classes(results: Path) -> str:
         f"ratio at B = {large:,}",
         "at the ML optimum",
     )
-    note = (
-        "`solve_pnp_batch` with its default options on each problem class of the accuracy "
-        "protocol (n = 16, 1 px) and on the bench's own model at random poses (its 16 "
-        "matched vertices, 0.7 px), against the loop of `cv2.solvePnP` (SQPNP) and "
-        "`solvePnPRefineLM` over the same problems. Growth: the time per problem at the "
-        f"larger batch over the smaller (target <= {T['classes_growth']['target']:g}x); "
-        f"ratio target >= {T['classes_vs_loop']['target']:g}x on every class."
-    )
     command = _run_command(d, "speed") + (" --sections classes" if "partial" in name else "")
-    return note + "\n\n" + table(header, rows) + "\n\n" + caption(d, name, command=command)
+    return table(header, rows) + "\n\n" + caption(d, name, command=command)
 
 
 # ----------------------------------------------------------------------------- scaling
