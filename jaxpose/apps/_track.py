@@ -252,7 +252,10 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options,
             e_index, e_strength, wanted = np.zeros(0), np.zeros(0), 0
         meas = Measurements(e_model, e_lines, corners.model, points_px)
         solved = _solve(R, t, K, meas, options)
-        if not solved.ok or not np.all(np.isfinite(solved.t)):
+        # (a solve sent off to a pose with measured model points behind the camera is
+        # no pose: the next round would search from it, as far as it moved)
+        depth = (np.vstack([e_model, corners.model]) @ solved.R.T + solved.t)[:, 2]
+        if not solved.ok or not np.all(np.isfinite(solved.t)) or np.any(depth <= 0):
             return fit._replace(result=fit.result._replace(ok=False))
         # (measured again from a pose that hardly moved: the same edges)
         settled = round_ >= 1 and options.settle >= moved_pixels(

@@ -205,7 +205,8 @@ def moving_edges(
       shutter was open (px), or None. Where the frame is blurred (the ramps found are
       about that wide, judged over the call's samples), a sample smeared over 2 px or
       more is matched to the middle of the ramp of that width (`_ramp_matches`); its
-      `strength` is then the ramp's mean derivative.
+      `strength` is then the ramp's mean derivative. A smear wider than the image is
+      taken as the image's width (a ramp no frame can show).
 
     **Returns:** `EdgeMatches`.
 
@@ -250,6 +251,7 @@ def moving_edges(
         smear = np.asarray(smear, dtype=np.float64).reshape(-1)
         if smear.shape != (count,) or not np.all(np.isfinite(smear)) or np.any(smear < 0):
             raise ValueError(f"smear must be {count} finite values >= 0")
+        smear = np.minimum(smear, max(grey.shape))  # (read no profile past that)
         halves = np.floor(smear / 2).astype(int)  # (the box nearest the smear, odd)
     pad = int(halves.max(initial=0))  # (the profile read further for the boxes)
     m = np.arange(-k - pad, k + pad + 2, dtype=np.float64) - 0.5  # half-step positions

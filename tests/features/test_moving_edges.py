@@ -188,6 +188,23 @@ def test_a_ramp_of_the_known_smear_is_found_at_its_middle():
     np.testing.assert_array_equal(a.valid, b.valid)
 
 
+def test_a_smear_wider_than_the_image_reads_no_further():
+    # A smear from a pose gone far off (a tracker's wild solve: billions of pixels) is
+    # taken as the image's width: the call returns, as fast as with that smear, and the
+    # one sample so smeared gives the same answer as at the image's width.
+    rng = np.random.default_rng(2)
+    image = 40.0 + 60.0 * (np.tile(np.arange(80.0), (60, 1)) >= 30) + rng.normal(0, 1, (60, 80))
+    points = np.column_stack([np.full(6, 31.3), np.linspace(10, 50, 6)])
+    normals = np.tile([1.0, 0.0], (6, 1))
+    wild = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 3e12])
+    a = moving_edges(image, points, normals, search=8, threshold=8.0, smear=wild)
+    b = moving_edges(image, points, normals, search=8, threshold=8.0,
+                     smear=np.minimum(wild, 80.0))  # fmt: skip
+    np.testing.assert_array_equal(a.matched, b.matched)
+    np.testing.assert_array_equal(a.valid, b.valid)
+    assert a.valid[:5].all() and np.abs(a.matched[:5, 0] - 29.5).max() < 0.3
+
+
 def test_a_video_sized_image():
     # 400 samples on a 640 x 480 image (`benchmarks/frontend.py` times it)
     rng = np.random.default_rng(0)
