@@ -422,7 +422,9 @@ def solve_pnp_batch(
     built only when a problem first needs it.
 
     `chunk_size`: at most this many problems per compiled call (`None`: `CHUNK`, 2048,
-    the remainder in a smaller bucket; memory is bounded by the chunk whatever `B`);
+    a smaller batch or the remainder padded to the smallest bucket of `16 * 2^k`
+    problems that holds it, so that every batch size of a bucket runs one compiled
+    program; memory is bounded by the chunk whatever `B`);
     `devices`: the batch is split over these (`None`: all of `jax.devices()`; an int:
     the first ones); see `jaxpose.api.run_batched`.
 
