@@ -142,17 +142,9 @@ def speed_classes(results: Path) -> str:
     section of `benchmarks/speed.py`): a table for each saved run that has it (the full
     run's and that of the section alone, `--sections classes`, often on another kind of
     machine), else the quick run's."""
-    runs = []
-    for names in (("speed.json", "speed_partial.json"), ("speed_quick.json",)):
-        for name in names:
-            try:
-                d, _ = load(results, name)
-            except Missing:
-                continue
-            if "classes" in d:
-                runs.append((d, name))
-        if runs:
-            break
+    runs = _with_classes(results, "speed.json", "speed_partial.json") or _with_classes(
+        results, "speed_quick.json"
+    )
     if not runs:
         raise Missing("the `classes` section in `benchmarks/results/speed.json`")
     T = runs[0][0]["targets"]
@@ -165,6 +157,19 @@ def speed_classes(results: Path) -> str:
         f"ratio target >= {T['classes_vs_loop']['target']:g}x on every class."
     )
     return "\n\n".join([note, *(_classes_table(d, name) for d, name in runs)])
+
+
+def _with_classes(results: Path, *names: str) -> list[tuple[dict, str]]:
+    """The saved runs among `names` that have the `classes` section, with their names."""
+    runs = []
+    for name in names:
+        try:
+            d, _ = load(results, name)
+        except Missing:
+            continue
+        if "classes" in d:
+            runs.append((d, name))
+    return runs
 
 
 def _classes_table(d: dict, name: str) -> str:

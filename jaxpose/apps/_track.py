@@ -254,12 +254,13 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options,
         solved = _solve(R, t, K, meas, options)
         # (a solve sent off to a pose with measured model points behind the camera is
         # no pose: the next round would search from it, as far as it moved)
-        depth = (np.vstack([e_model, corners.model]) @ solved.R.T + solved.t)[:, 2]
+        measured = np.vstack([e_model, corners.model])
+        depth = (measured @ solved.R.T + solved.t)[:, 2]
         if not solved.ok or not np.all(np.isfinite(solved.t)) or np.any(depth <= 0):
             return fit._replace(result=fit.result._replace(ok=False))
         # (measured again from a pose that hardly moved: the same edges)
         settled = round_ >= 1 and options.settle >= moved_pixels(
-            K, np.vstack([e_model, corners.model]), (R, t), (solved.R, solved.t)
+            K, measured, (R, t), (solved.R, solved.t)
         )
         R, t = solved.R, solved.t
         kept = solved.w_e > 0
