@@ -69,6 +69,11 @@ from ._track import track as track
 from ._track_options import TrackOptions as TrackOptions
 from ._track_refine import RefinedTrack as RefinedTrack
 from ._track_refine import refine_track as refine_track
+from ._track_target import Anchor as Anchor
+from ._track_target import Target as Target
+from ._track_target import anchor_click as anchor_click
+from ._track_target import follow_anchor as follow_anchor
+from ._track_target import follow_click as follow_click
 from ._visibility import EdgeSamples as EdgeSamples
 from ._visibility import MeshGeometry as MeshGeometry
 from ._visibility import RayHits as RayHits

@@ -187,7 +187,8 @@ def build_parser() -> argparse.ArgumentParser:
         '--init-pose ({"rvec": [..], "tvec": [..]}, OpenCV\'s conventions) or recognised. '
         '--json writes {"frames": [{"index", "ok", "status", "rvec", "tvec", "error_px", '
         '"inliers", "ms"}, ...]} (rvec and tvec null where lost), --csv the same columns. '
-        "A progress bar goes to stderr. --smooth refines the trajectory jointly after the "
+        "A progress bar goes to stderr. --point follows a clicked pixel's point of the object. "
+        "--smooth refines the trajectory jointly after the "
         "pass. `jaxpose warmup --track` builds the tracker's compiled programs ahead of "
         "time. Exit code 0 when every frame has a pose, 1 when some frame is lost, 2 on "
         "bad input.",
@@ -207,6 +208,14 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--overlay", metavar="OUT.mp4", help="write the frames with the model's "
                     "edges drawn at each pose (green tracked, blue found, red lost)")  # fmt: skip
     tr.add_argument("--frames", type=int, metavar="N", help="the first N frames only")
+    tr.add_argument("--point", type=float, nargs=2, metavar=("U", "V"), help="a pixel "
+                    "clicked on the object on frame --point-frame: the point of the object "
+                    "under it is followed on every later frame with a pose (--json and --csv "
+                    "gain target, its camera-frame position, target_px and target_visible; "
+                    "--overlay marks it)")  # fmt: skip
+    tr.add_argument("--point-frame", type=int, default=0, metavar="N", help="the frame "
+                    "--point was clicked on (default 0; the first frame from it with a pose "
+                    "anchors it)")  # fmt: skip
     tr.add_argument("--no-reinit", action="store_true", help="no recognition after a lost "
                     "frame (the last pose is tried again; needs --init-pose)")  # fmt: skip
     tr.add_argument("--reinit-every", type=int, default=1, metavar="K", help="after a lost "

@@ -10,7 +10,9 @@ mesh (the keypoints of `--textured` first). Outputs: `--json` (`{"frames": [{"in
 input frame; `rvec` and `tvec` null on a lost frame), `--csv` (the same columns),
 `--rrd` (the rerun recording: `jaxpose.viz._tracking`) and `--overlay` (an mp4 of the
 frames with the model's visible edges drawn at each pose). A progress bar goes to
-stderr.
+stderr. `--point U V [--point-frame N]`: a clicked pixel's point of the object followed
+(`jaxpose.apps.follow_click`): `--json` and `--csv` gain its camera-frame position, its
+pixel and whether it is in sight; `--overlay` marks it.
 
 `--smooth`: after the pass, the whole trajectory is refined jointly
 (`jaxpose.apps.refine_track`: every frame's stored measurements, the planes of the
@@ -51,6 +53,8 @@ __all__ = ["cmd_track", "jitter", "read_init_pose"]
 #: The columns of `--csv` (the keys of each `--json` frame; rvec and tvec as 3 each).
 CSV_COLUMNS = ("index", "ok", "status", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y",
                "tvec_z", "error_px", "inliers", "ms")  # fmt: skip
+#: `--point`'s columns, after those.
+TARGET_COLUMNS = ("target_x", "target_y", "target_z", "target_u", "target_v", "target_visible")
 
 
 def read_init_pose(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -111,6 +115,12 @@ def _check_args(args) -> None:
                           ("--smooth-translation", args.smooth_translation)):  # fmt: skip
         if not 0 < value < math.inf:
             raise CliError(f"{option} must be a finite number > 0, got {value}")
+    if args.point is not None and not all(math.isfinite(x) for x in args.point):
+        raise CliError(f"--point must be two finite numbers, got {args.point}")
+    if args.point_frame < 0:
+        raise CliError(f"--point-frame must be >= 0, got {args.point_frame}")
+    if args.point_frame != 0 and args.point is None:
+        raise CliError("--point-frame needs --point")
     if args.no_reinit and args.init_pose is None:
         raise CliError("--no-reinit needs --init-pose (the first frame is recognised otherwise)")
     check_recording_args(args)
@@ -161,6 +171,31 @@ def _row(r) -> dict[str, Any]:
             "ms": round(float(r.ms), 3)}  # fmt: skip
 
 
+def _with_target(row: dict[str, Any], target) -> dict[str, Any]:
+    """`row` with `--point`'s fields: the target's camera-frame position, its pixel and
+    whether it is in sight (null where the frame has none)."""
+    row["target"] = None if target is None else [float(x) for x in target.point]
+    row["target_px"] = None if target is None else [float(x) for x in target.pixel]
+    row["target_visible"] = None if target is None else bool(target.visible)
+    return row
+
+
+def _anchored_line(anchor, args) -> str:
+    u, v = args.point
+    if anchor is None:
+        return f"--point ({u:g}, {v:g}): no frame from {args.point_frame} on had a pose"
+    if anchor is False:
+        return (
+            f"--point ({u:g}, {v:g}): on frame {args.point_frame} or the first after it with a "
+            "pose, the pixel's ray meets no face of the model: nothing followed"
+        )
+    m = ", ".join(f"{x:.4g}" for x in anchor.point)
+    return (
+        f"--point ({u:g}, {v:g}) on frame {anchor.frame}: face {anchor.face} of the model, at "
+        f"({m}) in the model's frame; followed on every later frame with a pose"
+    )
+
+
 def _write_json(path: str, rows: list[dict[str, Any]], console) -> None:
     """`{"frames": [...]}`, one frame a line."""
     out = Path(path)
@@ -181,11 +216,17 @@ def _write_csv(path: str, rows: list[dict[str, Any]], console) -> None:
         out.parent.mkdir(parents=True, exist_ok=True)
         with out.open("w", newline="") as f:
             writer = csv.writer(f)
-            writer.writerow(CSV_COLUMNS)
+            targets = bool(rows) and "target" in rows[0]
+            writer.writerow(CSV_COLUMNS + (TARGET_COLUMNS if targets else ()))
             for row in rows:
                 pose = (row["rvec"] or [""] * 3) + (row["tvec"] or [""] * 3)
+                extra = []
+                if targets:
+                    seen = row["target_visible"]
+                    extra = [*(row["target"] or [""] * 3), *(row["target_px"] or [""] * 2),
+                             "" if seen is None else int(seen)]  # fmt: skip
                 writer.writerow([row["index"], int(row["ok"]), row["status"], *pose,
-                                 row["error_px"], row["inliers"], row["ms"]])  # fmt: skip
+                                 row["error_px"], row["inliers"], row["ms"], *extra])  # fmt: skip
     except OSError as exc:
         raise CliError(f"cannot write --csv {out}: {exc.strerror or exc}") from None
     console.print(f"wrote {out}")
@@ -321,15 +362,28 @@ def cmd_track(args) -> int:
 
         rec = open_recording(args, f"jaxpose track {args.input}", track_blueprint())
     results = []  # the frames' results, kept for --smooth
+    stream = track(feed(), geo, K, dist, initial, options=options, reinit=reinit)
+    follow = None
+    if args.point is not None:
+        from ..apps._track_target import follow_click
+
+        follow = follow_click(stream, mesh, K, dist, (args.point_frame, *args.point))
+    anchored = None  # --point's anchor (False: its ray met no face)
     rows: list[dict[str, Any]] = []
     trajectory: list[np.ndarray] = []
     progress = _Progress(total)
     lost = 0
     interrupted = False
     try:
-        for r in track(feed(), geo, K, dist, initial, options=options, reinit=reinit):
+        for r, target in _targets(stream, follow):
             frame = current["frame"]
-            rows.append(_row(r))
+            if follow is not None:
+                if anchored is None and target is not None:
+                    anchored = target[0]
+                elif anchored is None and r.ok and r.frame >= args.point_frame:
+                    anchored = False
+                target = None if target is None else target[1]
+            rows.append(_row(r) if follow is None else _with_target(_row(r), target))
             if args.smooth:
                 results.append(r)
             lost += not r.ok
@@ -337,6 +391,10 @@ def cmd_track(args) -> int:
                 from ..viz._tracking import draw_tracked
 
                 picture = draw_tracked(frame, geo, K, dist, r)
+                if follow is not None and target is not None:
+                    from ..viz._tracking import draw_target
+
+                    draw_target(picture, target)
                 if writer is None:
                     writer = _video_writer(args.overlay, frames, picture.shape[1::-1])
                 writer.write(picture)
@@ -370,10 +428,20 @@ def cmd_track(args) -> int:
                     f"{1e3 / max(float(np.mean(tracked)), 1e-9):.0f} frames/s (decoding "
                     "excluded)")  # fmt: skip
     console.print(summary)
+    if follow is not None:
+        console.print(_anchored_line(anchored, args))
     if args.smooth:
         centre = np.asarray(mesh.vertices, np.float64).mean(axis=0)
         refined, line, _ = _smooth(results, centre, args.smooth_rotation, args.smooth_translation)
         rows = [_row(r) for r in refined]
+        if follow is not None:  # the anchored point at the refined poses
+            from ..apps._track_target import follow_anchor
+
+            for row, r in zip(rows, refined, strict=True):
+                target = None
+                if anchored and r.ok and r.frame >= anchored.frame:
+                    target = follow_anchor(anchored, mesh, K, dist, r.R, r.t, frame=r.frame)
+                _with_target(row, target)
         console.print(line)
     if args.json:
         _write_json(args.json, rows, console)
@@ -384,6 +452,17 @@ def cmd_track(args) -> int:
     if rec is not None:
         finish_recording(args, console, rec)
     return 0 if lost == 0 else 1
+
+
+def _targets(stream, follow):
+    """`(result, (anchor, target) or None)` for each frame of the tracker's `stream`
+    (`follow`: `follow_click` over it, or None without `--point`)."""
+    if follow is None:
+        for r in stream:
+            yield r, None
+        return
+    for r, anchor, target in follow:
+        yield r, (None if target is None else (anchor, target))
 
 
 def _video_writer(path: str, frames, size: tuple[int, int]):

@@ -35,7 +35,13 @@ if TYPE_CHECKING:  # pragma: no cover
     import rerun as rr
     import rerun.blueprint as rrb
 
-__all__ = ["draw_tracked", "log_track_camera", "log_tracked_frame", "track_blueprint"]
+__all__ = [
+    "draw_target",
+    "draw_tracked",
+    "log_track_camera",
+    "log_tracked_frame",
+    "track_blueprint",
+]
 
 #: The colour of the model's edges by the frame's status (RGB).
 STATUS_RGB = {
@@ -83,6 +89,18 @@ def draw_tracked(image: np.ndarray, geo: MeshGeometry, K, dist, result: TrackedF
     cv2.putText(picture, label, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (b, g, r), 2,
                 cv2.LINE_AA)  # fmt: skip
     return picture
+
+
+def draw_target(picture: np.ndarray, target) -> None:
+    """Mark a followed point (`jaxpose.apps.Target`) on a BGR `picture` in place: a
+    yellow cross where it is in sight, a grey one where the object hides it."""
+    import cv2
+
+    if not np.all(np.isfinite(target.pixel)):
+        return
+    u, v = (int(round(float(x))) for x in target.pixel)
+    colour = (0, 220, 255) if target.visible else (150, 150, 150)
+    cv2.drawMarker(picture, (u, v), colour, cv2.MARKER_CROSS, 18, 2, cv2.LINE_AA)
 
 
 def track_blueprint() -> rrb.Blueprint:

@@ -317,3 +317,56 @@ def test_jitter_of_a_trajectory():
     assert found["translation_2nd"] == pytest.approx(0.0, abs=1e-9)
     few = cli_track.jitter([poses[0], None, poses[2]], np.zeros(3))
     assert all(np.isnan(v) for v in few.values())
+
+
+def test_point_is_followed_through_the_sequence(sequence, capsys, monkeypatch):
+    # The centre of the face most turned to the camera, clicked on frame 2: its position
+    # and pixel on every later frame with a pose, none on the hidden (lost) frames.
+    asked = []
+    monkeypatch.setattr(cli_track, "_reinit", _stand_in(sequence["Rs"], sequence["ts"], asked))
+    Rs, ts = sequence["Rs"], sequence["ts"]
+    best, centre = -np.inf, None
+    for face in BOX.faces:
+        corners = BOX.vertices[list(face)]
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        middle = corners.mean(axis=0)
+        p = Rs[2] @ middle + ts[2]
+        facing = -(Rs[2] @ normal) @ p / (np.linalg.norm(normal) * np.linalg.norm(p))
+        if facing > best:
+            best, centre = facing, middle
+    u, v = (K @ (Rs[2] @ centre + ts[2]))[:2] / (Rs[2] @ centre + ts[2])[2]
+    out = sequence["tmp"] / "point"
+    rc = main(["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
+               str(sequence["camera"]), "--init-pose", str(sequence["pose"]), "--point",
+               str(u), str(v), "--point-frame", "2", "--json", str(out / "t.json"), "--csv",
+               str(out / "t.csv"), "--overlay", str(out / "t.mp4")])  # fmt: skip
+    stdout = capsys.readouterr().out.replace("\n", " ")
+    assert rc == 1 and "on frame 2: face" in stdout
+    frames = json.loads((out / "t.json").read_text())["frames"]
+    for i, f in enumerate(frames):
+        if i < 2 or not f["ok"]:
+            assert f["target"] is None and f["target_px"] is None and f["target_visible"] is None
+            continue
+        true = Rs[i] @ centre + ts[i]
+        assert np.linalg.norm(np.array(f["target"]) - true) <= 0.005 * np.linalg.norm(true)
+        pixel = (K @ true)[:2] / true[2]
+        assert np.linalg.norm(np.array(f["target_px"]) - pixel) < 1.5 and f["target_visible"]
+    assert sum(f["target"] is not None for f in frames) == 12 - 2 - len(HIDDEN)
+    with (out / "t.csv").open() as fh:
+        table = list(csv.DictReader(fh))
+    assert table[1]["target_x"] == "" and table[3]["target_visible"] == "1"
+    np.testing.assert_allclose(float(table[3]["target_u"]), frames[3]["target_px"][0])
+    video = cv2.VideoCapture(str(out / "t.mp4"))  # the target marked (yellow) on frame 3
+    for _ in range(4):
+        ok, picture = video.read()
+    video.release()
+    cu, cv = (int(round(x)) for x in frames[3]["target_px"])
+    patch = picture[cv - 6 : cv + 7, cu - 6 : cu + 7].reshape(-1, 3).astype(int)
+    assert ok and np.any((patch[:, 2] > 180) & (patch[:, 1] > 150) & (patch[:, 0] < 90))
+
+
+def test_point_frame_needs_point(sequence, capsys):
+    argv = ["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
+            str(sequence["camera"]), "--point-frame", "3"]  # fmt: skip
+    assert main(argv) == 2
+    assert "--point-frame needs --point" in capsys.readouterr().err
