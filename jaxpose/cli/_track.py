@@ -403,7 +403,8 @@ def cmd_track(args) -> int:
 
                 if r.frame == 0:
                     log_track_camera(rec, K, frame.shape[1::-1])
-                log_tracked_frame(rec, frame, r, geo, K, dist, trajectory)
+                log_tracked_frame(rec, frame, r, geo, K, dist, trajectory,
+                                  clicked=follow is not None, target=target)  # fmt: skip
             progress.update(len(rows), lost)
     except ValueError as exc:
         raise CliError(f"INPUT {args.input}: {str(exc).removeprefix('source: ')}") from None

@@ -150,11 +150,15 @@ def log_tracked_frame(
     trajectory: list[np.ndarray],
     *,
     jpeg_quality: int = 75,
+    clicked: bool = False,
+    target=None,
 ) -> None:
     """One frame on the `frame` timeline: the image (JPEG), the model's edges over it
     and its wireframe in 3D at the frame's pose, the trajectory so far (`trajectory`:
     the model centre's positions of the frames with a pose, this one appended when it
-    has one), the scalars and the status line."""
+    has one), the scalars and the status line; when `clicked` (a click is followed), the
+    pixel and 3D point of `target` (a `jaxpose.apps.Target`, or None on a frame without
+    one: cleared)."""
     import cv2
 
     rr = _rr()
@@ -174,6 +178,13 @@ def log_tracked_frame(
         trajectory.append(vertices.mean(axis=0) @ result.R.T + result.t)
     if len(trajectory) >= 2:
         rec.log("world/trajectory", rr.LineStrips3D([np.array(trajectory)], colors=(255, 200, 0)))
+    if target is not None:
+        colour = (255, 220, 0) if target.visible else (150, 150, 150)
+        rec.log("world/camera/image/target", rr.Points2D([target.pixel], colors=colour, radii=4))
+        rec.log("world/target", rr.Points3D([target.point], colors=colour, radii=1.0))
+    elif clicked:
+        rec.log("world/camera/image/target", rr.Clear(recursive=False))
+        rec.log("world/target", rr.Clear(recursive=False))
     rec.log("metrics/error_px", rr.Scalars(float(result.rms)))
     rec.log("metrics/inliers", rr.Scalars(float(result.edges + result.points)))
     rec.log("metrics/ms", rr.Scalars(float(result.ms)))

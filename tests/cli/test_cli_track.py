@@ -339,7 +339,8 @@ def test_point_is_followed_through_the_sequence(sequence, capsys, monkeypatch):
     rc = main(["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
                str(sequence["camera"]), "--init-pose", str(sequence["pose"]), "--point",
                str(u), str(v), "--point-frame", "2", "--json", str(out / "t.json"), "--csv",
-               str(out / "t.csv"), "--overlay", str(out / "t.mp4")])  # fmt: skip
+               str(out / "t.csv"), "--overlay", str(out / "t.mp4"), "--rrd",
+               str(out / "t.rrd")])  # fmt: skip
     stdout = capsys.readouterr().out.replace("\n", " ")
     assert rc == 1 and "on frame 2: face" in stdout
     frames = json.loads((out / "t.json").read_text())["frames"]
@@ -363,6 +364,11 @@ def test_point_is_followed_through_the_sequence(sequence, capsys, monkeypatch):
     cu, cv = (int(round(x)) for x in frames[3]["target_px"])
     patch = picture[cv - 6 : cv + 7, cu - 6 : cu + 7].reshape(-1, 3).astype(int)
     assert ok and np.any((patch[:, 2] > 180) & (patch[:, 1] > 150) & (patch[:, 0] < 90))
+    verify_recording(out / "t.rrd")
+    from rerun.chunk import RrdReader
+
+    entities = {chunk.entity_path for chunk in RrdReader(out / "t.rrd").stream()}
+    assert {"/world/target", "/world/camera/image/target"} <= entities
 
 
 def test_point_frame_needs_point(sequence, capsys):
