@@ -54,9 +54,18 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from ..api._programs import bucket_points, program
 from ..geometry._numerics import masked_centroid
 from ..geometry._rotation import rotvec_to_matrix
-from ..solvers._linalg import cholesky_solve
+from ..solvers._linalg import cholesky_solve, symmetric_pinv
+from ..strategy._covariance import PoseCovariance
 
-__all__ = ["Measurements", "Solved", "TrackRows", "moved_pixels", "plane_rows", "solve_frame"]
+__all__ = [
+    "Measurements",
+    "Solved",
+    "TrackRows",
+    "frame_covariance",
+    "moved_pixels",
+    "plane_rows",
+    "solve_frame",
+]
 
 #: Tukey's biweight constant (95% efficiency under Gaussian noise).
 TUKEY = 4.685
@@ -317,6 +326,71 @@ def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
                      scales[:U].astype(np.float64))  # fmt: skip
     return Solved(_orthonormal(R1.astype(np.float64)), t1.astype(np.float64), tukey[:E],
                   tukey[E:], float(rms), float(judged), bool(ok), rows)  # fmt: skip
+
+
+def _covariance(R, t, model, planes, mask, weights, scales):
+    """The Gauss-Newton covariance of the last step's weighted rows at `(R, t)` (see
+    `frame_covariance`), padded shapes: `(covariance (6, 6), rank)`."""
+    _, J, centre = plane_rows(R, t, model, planes, mask)
+    unit = jnp.any(mask, axis=1)
+    info = jnp.where(unit, weights / (scales * scales), 0)
+    Jw = J * (info[:, None] * mask)[:, :, None]
+    A = jnp.einsum("uki,ukj->ij", Jw, J)  # information of (dt, r), r about `centre`
+    inv, rank, _ = symmetric_pinv(A)
+    # (dt, r) -> (w, dt'): w = r, dt' = dt - hat(t - centre) r (the rotation about the
+    # camera frame's origin, as `jaxpose.pose_covariance` reports it)
+    a = t - centre
+    hat = jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]], t.dtype)
+    eye, zero = jnp.eye(3, dtype=t.dtype), jnp.zeros((3, 3), t.dtype)
+    T = jnp.block([[zero, eye], [eye, -hat]])
+    cov = T @ inv @ T.T
+    return 0.5 * (cov + cov.T), rank
+
+
+_COVARIANCE = program(_covariance)
+
+
+def frame_covariance(result) -> PoseCovariance | None:
+    """The first-order covariance of a tracked frame's pose, or None on a frame without
+    one (`TrackedFrame.rows` None, or no weighted row).
+
+    The solve's last step weighs each measurement by its Tukey weight over its kind's
+    robust scale squared (edges and points apart: `TrackRows.weights / scales^2`); the
+    inverse of those normal equations at the frame's pose, `(sum w / s^2 J^T J)^+`, is
+    the Gauss-Newton covariance with the robust scales as the noise of each kind (an
+    inlier's pixel error has that standard deviation). It is reported in the order and
+    parameterisation of `jaxpose.pose_covariance`: `(w, dt)`, `R = exp(hat(w)) R^`,
+    `t = t^ + dt` (radians, model units). The measurements' biases (a printed line taken
+    for an edge) are not in it: it is the spread the noise alone leaves.
+
+    **Arguments:** `result`, a `jaxpose.apps.TrackedFrame`.
+
+    **Returns:** a `jaxpose.PoseCovariance` (JAX arrays, as `jaxpose.pose_covariance`
+    gives): `covariance` `(6, 6)`; `sigma` the robust
+    scale (px) of the edges where any took part, else of the points; `rank` 6 where the
+    measurements fix every motion, fewer where they leave one free (the pseudo-inverse:
+    that motion gets no variance).
+    """
+    rows = getattr(result, "rows", None)
+    if rows is None or not getattr(result, "ok", False) or not np.any(rows.weights > 0):
+        return None
+    U = len(rows.weights)
+    size = bucket_points(U)
+    f = _float()
+
+    def pad(a, fill=0):
+        out = np.full((size, *a.shape[1:]), fill, a.dtype)
+        out[:U] = a
+        return out
+
+    args = (np.asarray(result.R, f), np.asarray(result.t, f), pad(rows.model.astype(f)),
+            pad(rows.planes.astype(f)), pad(rows.mask), pad(rows.weights.astype(f)),
+            pad(rows.scales.astype(f), 1))  # fmt: skip
+    cov, rank = _COVARIANCE(*args)
+    used = rows.weights > 0
+    edges = used & ~rows.point
+    sigma = rows.scales[edges][0] if np.any(edges) else rows.scales[used][0]
+    return PoseCovariance(cov, jnp.asarray(sigma, cov.dtype), rank)
 
 
 def moved_pixels(K, model: np.ndarray, a: tuple, b: tuple) -> float:

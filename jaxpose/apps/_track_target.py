@@ -25,6 +25,7 @@ import numpy as np
 from ..api._programs import program
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
+from ._track_solve import frame_covariance
 
 if TYPE_CHECKING:
     from ._track import TrackedFrame
@@ -57,12 +58,15 @@ class Target(NamedTuple):
     - `pixel`: `(2,)` where it projects (the camera's distortion applied).
     - `visible`: whether it is in sight: in front of the camera, on a face turned to
       it, and nothing of the object in front of it.
+    - `covariance`: `(3, 3)` the covariance of `point` from the frame's pose covariance
+      (the anchored model point held fixed), or None when none was given.
     """
 
     frame: int
     point: np.ndarray
     pixel: np.ndarray
     visible: bool
+    covariance: np.ndarray | None = None
 
 
 def _pick_run(K, vertices, mask, R, t, pixel):
@@ -132,11 +136,19 @@ def _anchor(faces, K, dist, R, t, pixel: np.ndarray, frame: int) -> Anchor | Non
     return Anchor(int(frame), pixel, R.T @ (point - t), face) if ok else None
 
 
-def _follow(anchor: Anchor, faces, K, dist, R, t, frame: int) -> Target:
+def _follow(anchor: Anchor, faces, K, dist, R, t, frame: int, pose_cov=None) -> Target:
     p = R @ anchor.point + t
+    cov = None
+    if pose_cov is not None:
+        # p = exp(hat(w)) R m + t + dt: dp / d(w, dt) = [-hat(R m), I]
+        a = R @ anchor.point
+        J = np.array([[0.0, a[2], -a[1], 1, 0, 0], [-a[2], 0.0, a[0], 0, 1, 0],
+                      [a[1], -a[0], 0.0, 0, 0, 1]])  # fmt: skip
+        cov = J @ pose_cov @ J.T
+        cov = 0.5 * (cov + cov.T)
     depth = float(p[2])
     if depth <= 0:  # behind the camera: out of sight, no pixel
-        return Target(int(frame), p, np.zeros(2), False)
+        return Target(int(frame), p, np.zeros(2), False, cov)
     ideal = (K @ p)[:2] / depth
     pixel = ideal
     if dist is not None:
@@ -147,7 +159,7 @@ def _follow(anchor: Anchor, faces, K, dist, R, t, frame: int) -> Target:
     seen, _, ok = _hit(faces, K, R, t, ideal)
     # in sight: the pixel's ray meets the object first at the point itself
     visible = ok and float(np.linalg.norm(seen - p)) <= 1e-6 * float(np.linalg.norm(p))
-    return Target(int(frame), p, np.asarray(pixel, np.float64), bool(visible))
+    return Target(int(frame), p, np.asarray(pixel, np.float64), bool(visible), cov)
 
 
 def _pixel(pixel) -> np.ndarray:
@@ -179,9 +191,13 @@ def anchor_click(model: Polyhedron, K, dist, R, t, pixel, *, frame: int = 0) -> 
 
 
 @no_type_check
-def follow_anchor(anchor: Anchor, model: Polyhedron, K, dist, R, t, *, frame: int) -> Target:
+def follow_anchor(
+    anchor: Anchor, model: Polyhedron, K, dist, R, t, *, frame: int, pose_covariance=None
+) -> Target:
     """The anchored point at the pose `(R, t)` of frame `frame` (see the module
-    docstring). Arguments as `anchor_click`.
+    docstring). Arguments as `anchor_click`; `pose_covariance`: optional `(6, 6)`
+    covariance of the pose in `jaxpose.pose_covariance`'s order `(w, dt)` (e.g.
+    `jaxpose.apps.frame_covariance(result).covariance`), carried to the point's.
 
     **Raises:** `ValueError` naming the argument.
     """
@@ -190,7 +206,12 @@ def follow_anchor(anchor: Anchor, model: Polyhedron, K, dist, R, t, *, frame: in
     faces = _faces(model)
     K, dist = _camera(K, dist)
     R, t = _pose(R, t)
-    return _follow(anchor, faces, K, dist, R, t, frame)
+    cov = None
+    if pose_covariance is not None:
+        cov = np.asarray(pose_covariance, np.float64)
+        if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+            raise ValueError(f"pose_covariance must be a finite (6, 6) matrix, got {cov.shape}")
+    return _follow(anchor, faces, K, dist, R, t, frame, cov)
 
 
 @no_type_check
@@ -208,7 +229,8 @@ def follow_click(
     **Returns:** a generator of `(result, anchor, target)`, one per result: `anchor`
     None until the click is anchored, and for good when its ray met no face of the
     object there (it is not tried again); `target` None on the frames before and on
-    frames without a pose.
+    frames without a pose; its `covariance` from the frame's (`frame_covariance`, where
+    the result keeps its measurements).
 
     **Raises:** `ValueError` naming the argument.
     """
@@ -236,5 +258,7 @@ def _follow_click(
                 tried = True
                 found = _anchor(faces, K, dist, R, t, pixel, r.frame)
             if found is not None:
-                target = _follow(found, faces, K, dist, R, t, r.frame)
+                covariance = frame_covariance(r)
+                pose_cov = None if covariance is None else np.asarray(covariance.covariance)
+                target = _follow(found, faces, K, dist, R, t, r.frame, pose_cov)
         yield r, found, target

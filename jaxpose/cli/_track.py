@@ -54,7 +54,8 @@ __all__ = ["cmd_track", "jitter", "read_init_pose"]
 CSV_COLUMNS = ("index", "ok", "status", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y",
                "tvec_z", "error_px", "inliers", "ms")  # fmt: skip
 #: `--point`'s columns, after those.
-TARGET_COLUMNS = ("target_x", "target_y", "target_z", "target_u", "target_v", "target_visible")
+TARGET_COLUMNS = ("target_x", "target_y", "target_z", "target_u", "target_v", "target_visible",
+                  "target_std_x", "target_std_y", "target_std_z")  # fmt: skip
 
 
 def read_init_pose(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -172,11 +173,17 @@ def _row(r) -> dict[str, Any]:
 
 
 def _with_target(row: dict[str, Any], target) -> dict[str, Any]:
-    """`row` with `--point`'s fields: the target's camera-frame position, its pixel and
-    whether it is in sight (null where the frame has none)."""
+    """`row` with `--point`'s fields: the target's camera-frame position, its pixel,
+    whether it is in sight and the standard deviations of its position along the
+    camera's axes from the frame's pose covariance (null where the frame has none)."""
+    import numpy as np
+
     row["target"] = None if target is None else [float(x) for x in target.point]
     row["target_px"] = None if target is None else [float(x) for x in target.pixel]
     row["target_visible"] = None if target is None else bool(target.visible)
+    cov = None if target is None else target.covariance
+    std = None if cov is None else np.sqrt(np.maximum(np.diagonal(cov), 0))
+    row["target_std"] = None if std is None else [float(x) for x in std]
     return row
 
 
@@ -224,7 +231,8 @@ def _write_csv(path: str, rows: list[dict[str, Any]], console) -> None:
                 if targets:
                     seen = row["target_visible"]
                     extra = [*(row["target"] or [""] * 3), *(row["target_px"] or [""] * 2),
-                             "" if seen is None else int(seen)]  # fmt: skip
+                             "" if seen is None else int(seen),
+                             *(row["target_std"] or [""] * 3)]  # fmt: skip
                 writer.writerow([row["index"], int(row["ok"]), row["status"], *pose,
                                  row["error_px"], row["inliers"], row["ms"], *extra])  # fmt: skip
     except OSError as exc:

@@ -210,3 +210,53 @@ def test_a_step_that_is_not_finite_gives_no_pose(monkeypatch):
     assert not got.ok and not np.any(got.w_e) and not np.any(got.w_p)
     np.testing.assert_array_equal(got.R, R)
     np.testing.assert_array_equal(got.t, t)
+
+
+def test_frame_covariance_is_the_spread_of_the_solves_under_noise():
+    # 300 frames of the same object and measurement directions, fresh Gaussian noise
+    # (0.4 px) each: the poses' spread is what `frame_covariance` predicts, in
+    # `jaxpose.pose_covariance`'s order (w, dt).
+    from jaxpose.apps import TrackedFrame, frame_covariance
+
+    rng = np.random.default_rng(11)
+    R = cv2.Rodrigues(np.array([0.4, -0.3, 0.2]))[0]
+    t = np.array([1.0, -2.0, 80.0])
+    E, P, noise = 120, 40, 0.4
+    edge_model, point_model = rng.uniform(-8, 8, (E, 3)), rng.uniform(-8, 8, (P, 3))
+    angle = rng.uniform(0, np.pi, E)
+    n = np.column_stack([np.cos(angle), np.sin(angle)])
+    X, Xp = edge_model @ R.T + t, point_model @ R.T + t
+    q0, p0 = (X @ K.T)[:, :2] / X[:, 2:], (Xp @ K.T)[:, :2] / Xp[:, 2:]
+    errors, covariances = [], []
+    for _ in range(300):
+        q = q0 + n * rng.normal(0, noise, (E, 1))
+        lines = np.column_stack([n, -(n * q).sum(axis=1)])
+        meas = Measurements(edge_model, lines, point_model, p0 + rng.normal(0, noise, (P, 2)))
+        s = solve_frame(R, t, K, meas, iterations=5, min_rows=12, min_scale=0.05)
+        got = frame_covariance(TrackedFrame(0, s.R, s.t, s.ok, E, P, s.rms, "tracked", 0, s.rows))
+        assert got is not None and got.rank == 6 and 0.25 < got.sigma < 0.6
+        errors.append(np.concatenate([cv2.Rodrigues(s.R @ R.T)[0].ravel(), s.t - t]))
+        covariances.append(got.covariance)
+    errors = np.array(errors)
+    ratio = np.sqrt(np.diag(np.mean(covariances, axis=0)) / np.diag(np.cov(errors.T)))
+    assert np.all((ratio > 0.85) & (ratio < 1.2)), ratio
+    mahalanobis = [e @ np.linalg.solve(c, e) for e, c in zip(errors, covariances, strict=True)]
+    assert 5.0 < np.mean(mahalanobis) < 7.0  # chi-squared with 6 degrees of freedom
+
+
+def test_frame_covariance_without_a_pose_or_with_a_free_motion():
+    from jaxpose.apps import TrackedFrame, frame_covariance
+
+    meas, R, t = _problem(3, 150, 0, outliers=0.0)
+    s = solve_frame(R, t, K, meas, iterations=3, min_rows=12, min_scale=0.3)
+    assert frame_covariance(TrackedFrame(0, s.R, s.t, False, 0, 0, 0.0, "lost")) is None
+    assert frame_covariance(TrackedFrame(0, s.R, s.t, True, 150, 0, s.rms, "tracked")) is None
+    # edges all of one direction leave the motion along them free: rank < 6, finite
+    lines = meas.edge_lines.copy()
+    lines[:, :2] = [1.0, 0.0]
+    X = meas.edge_model @ R.T + t
+    lines[:, 2] = -((X @ K.T)[:, 0] / X[:, 2])
+    one_way = meas._replace(edge_lines=lines)
+    s = solve_frame(R, t, K, one_way, iterations=1, min_rows=12, min_scale=0.3)
+    got = frame_covariance(TrackedFrame(0, R, t, True, 150, 0, 0.0, "tracked", 0, s.rows))
+    assert got is not None and got.rank < 6 and np.all(np.isfinite(got.covariance))

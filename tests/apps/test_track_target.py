@@ -125,3 +125,21 @@ def test_follow_click_anchors_on_the_first_posed_frame_and_skips_lost_ones():
 def test_bad_arguments_are_refused_by_name(call, name):
     with pytest.raises(ValueError, match=name):
         call()
+
+
+def test_the_target_covariance_carries_the_pose_covariance():
+    # Poses drawn from a pose covariance (w, dt): the followed point's spread is the
+    # target's covariance.
+    index, centre = _front_faces(R0, T0)[0]
+    anchor = anchor_click(BOX, K, None, R0, T0, _pixel(centre, R0, T0))
+    rng = np.random.default_rng(5)
+    L = rng.normal(size=(6, 6)) * np.array([2e-3] * 3 + [0.05] * 3)[:, None]
+    pose_cov = L @ L.T
+    target = follow_anchor(anchor, BOX, K, None, R0, T0, frame=0, pose_covariance=pose_cov)
+    draws = rng.multivariate_normal(np.zeros(6), pose_cov, size=4000)
+    points = [cv2.Rodrigues(d[:3])[0] @ R0 @ anchor.point + T0 + d[3:] for d in draws]
+    np.testing.assert_allclose(target.covariance, np.cov(np.array(points).T), rtol=0.1,
+                               atol=0.02 * np.max(np.diag(target.covariance)))  # fmt: skip
+    assert follow_anchor(anchor, BOX, K, None, R0, T0, frame=0).covariance is None
+    with pytest.raises(ValueError, match="pose_covariance"):
+        follow_anchor(anchor, BOX, K, None, R0, T0, frame=0, pose_covariance=np.eye(3))

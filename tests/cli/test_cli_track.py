@@ -347,16 +347,20 @@ def test_point_is_followed_through_the_sequence(sequence, capsys, monkeypatch):
     for i, f in enumerate(frames):
         if i < 2 or not f["ok"]:
             assert f["target"] is None and f["target_px"] is None and f["target_visible"] is None
+            assert f["target_std"] is None
             continue
         true = Rs[i] @ centre + ts[i]
         assert np.linalg.norm(np.array(f["target"]) - true) <= 0.005 * np.linalg.norm(true)
         pixel = (K @ true)[:2] / true[2]
         assert np.linalg.norm(np.array(f["target_px"]) - pixel) < 1.5 and f["target_visible"]
+        std = np.array(f["target_std"])  # from the frame's pose covariance
+        assert np.all(std > 0) and np.linalg.norm(std) < 0.005 * np.linalg.norm(true)
     assert sum(f["target"] is not None for f in frames) == 12 - 2 - len(HIDDEN)
     with (out / "t.csv").open() as fh:
         table = list(csv.DictReader(fh))
     assert table[1]["target_x"] == "" and table[3]["target_visible"] == "1"
     np.testing.assert_allclose(float(table[3]["target_u"]), frames[3]["target_px"][0])
+    np.testing.assert_allclose(float(table[3]["target_std_z"]), frames[3]["target_std"][2])
     video = cv2.VideoCapture(str(out / "t.mp4"))  # the target marked (yellow) on frame 3
     for _ in range(4):
         ok, picture = video.read()
