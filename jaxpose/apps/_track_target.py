@@ -25,7 +25,9 @@ import numpy as np
 from ..api._programs import program
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
+from ._track import _undistort
 from ._track_solve import frame_covariance
+from ._visibility import _check_pose, project
 
 if TYPE_CHECKING:
     from ._track import TrackedFrame
@@ -90,37 +92,6 @@ def _faces(model):
     return polyhedron_faces(model)
 
 
-def _camera(K, dist) -> tuple[np.ndarray, np.ndarray | None]:
-    K = np.asarray(K, np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
-        raise ValueError(f"K must be a finite (3, 3) matrix, got shape {K.shape}")
-    if dist is None:
-        return K, None
-    dist = np.asarray(dist, np.float64).ravel()
-    if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
-        raise ValueError(
-            f"dist must be None or 4, 5, 8, 12 or 14 finite coefficients, got {dist.size}"
-        )
-    return K, (dist if np.any(dist) else None)
-
-
-def _pose(R, t) -> tuple[np.ndarray, np.ndarray]:
-    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64).ravel()
-    finite = np.all(np.isfinite(R)) and np.all(np.isfinite(t))
-    if R.shape != (3, 3) or t.shape != (3,) or not finite:
-        raise ValueError("the pose must be a finite (3, 3) rotation and a (3,) translation")
-    return R, t
-
-
-def _ideal(pixel: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
-    """The pinhole camera's pixel of a distorted one."""
-    if dist is None:
-        return pixel
-    import cv2
-
-    return cv2.undistortPoints(pixel.reshape(1, 1, 2), K, dist, P=K).reshape(2)
-
-
 def _hit(faces, K, R, t, pixel) -> tuple[np.ndarray, int, bool]:
     from ._pointing import PointingStatus
 
@@ -132,7 +103,7 @@ def _hit(faces, K, R, t, pixel) -> tuple[np.ndarray, int, bool]:
 
 
 def _anchor(faces, K, dist, R, t, pixel: np.ndarray, frame: int) -> Anchor | None:
-    point, face, ok = _hit(faces, K, R, t, _ideal(pixel, K, dist))
+    point, face, ok = _hit(faces, K, R, t, _undistort(pixel[None], K, dist)[0])
     return Anchor(int(frame), pixel, R.T @ (point - t), face) if ok else None
 
 
@@ -150,12 +121,7 @@ def _follow(anchor: Anchor, faces, K, dist, R, t, frame: int, pose_cov=None) -> 
     if depth <= 0:  # behind the camera: out of sight, no pixel
         return Target(int(frame), p, np.zeros(2), False, cov)
     ideal = (K @ p)[:2] / depth
-    pixel = ideal
-    if dist is not None:
-        import cv2
-
-        zero = np.zeros(3)
-        pixel = cv2.projectPoints(p.reshape(1, 3), zero, zero, K, dist)[0].reshape(2)
+    pixel = ideal if dist is None else project(p[None], K, dist)[0]
     seen, _, ok = _hit(faces, K, R, t, ideal)
     # in sight: the pixel's ray meets the object first at the point itself
     visible = ok and float(np.linalg.norm(seen - p)) <= 1e-6 * float(np.linalg.norm(p))
@@ -185,8 +151,7 @@ def anchor_click(model: Polyhedron, K, dist, R, t, pixel, *, frame: int = 0) -> 
     **Raises:** `ValueError` naming the argument.
     """
     faces = _faces(model)
-    K, dist = _camera(K, dist)
-    R, t = _pose(R, t)
+    K, dist, R, t = _check_pose(K, dist, R, t)
     return _anchor(faces, K, dist, R, t, _pixel(pixel), frame)
 
 
@@ -204,8 +169,7 @@ def follow_anchor(
     if not isinstance(anchor, Anchor):
         raise ValueError(f"anchor must be an Anchor, got {type(anchor).__name__}")
     faces = _faces(model)
-    K, dist = _camera(K, dist)
-    R, t = _pose(R, t)
+    K, dist, R, t = _check_pose(K, dist, R, t)
     cov = None
     if pose_covariance is not None:
         cov = np.asarray(pose_covariance, np.float64)
@@ -235,7 +199,7 @@ def follow_click(
     **Raises:** `ValueError` naming the argument.
     """
     faces = _faces(model)
-    K, dist = _camera(K, dist)
+    K, dist, _, _ = _check_pose(K, dist, np.eye(3), np.zeros(3))
     if not isinstance(click, tuple | list) or len(click) != 3:
         raise ValueError("click must be (frame, u, v)")
     start = int(click[0])
