@@ -2,7 +2,8 @@
 hypothesis verification, recognition without correspondences and from keypoints,
 click-to-3D pointing, the robot, camera calibration, mesh files (PLY, OBJ, ViSP's .cao);
 tracking through video (what a camera sees of a model, rays cast onto it, a software
-renderer for ground-truth sequences, the tracker).
+renderer for ground-truth sequences, the tracker, a clicked point followed and its
+uncertainty).
 """
 
 from ._bench import Bench as Bench
