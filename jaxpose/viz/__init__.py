@@ -18,6 +18,7 @@ from ._rerun_solution import log_solution as log_solution
 from ._rerun_solution import log_triplets as log_triplets
 from ._scenes import RenderedScene as RenderedScene
 from ._scenes import rendered_scene as rendered_scene
+from ._tracking import draw_target as draw_target
 from ._tracking import draw_tracked as draw_tracked
 from ._tracking import log_track_camera as log_track_camera
 from ._tracking import log_tracked_frame as log_tracked_frame
