@@ -12,7 +12,8 @@ input frame; `rvec` and `tvec` null on a lost frame), `--csv` (the same columns)
 frames with the model's visible edges drawn at each pose). A progress bar goes to
 stderr. `--point U V [--point-frame N]`: a clicked pixel's point of the object followed
 (`jaxpose.apps.follow_click`): `--json` and `--csv` gain its camera-frame position, its
-pixel and whether it is in sight; `--overlay` marks it.
+pixel, whether it is in sight and its standard deviation; `--overlay` and `--rrd` show
+it.
 
 `--smooth`: after the pass, the whole trajectory is refined jointly
 (`jaxpose.apps.refine_track`: every frame's stored measurements, the planes of the
@@ -383,14 +384,10 @@ def cmd_track(args) -> int:
     lost = 0
     interrupted = False
     try:
-        for r, target in _targets(stream, follow):
+        for r, anchor, target in _targets(stream, follow):
             frame = current["frame"]
-            if follow is not None:
-                if anchored is None and target is not None:
-                    anchored = target[0]
-                elif anchored is None and r.ok and r.frame >= args.point_frame:
-                    anchored = False
-                target = None if target is None else target[1]
+            if follow is not None and anchored is None and r.ok and r.frame >= args.point_frame:
+                anchored = False if anchor is None else anchor  # (the first posed frame's)
             rows.append(_row(r) if follow is None else _with_target(_row(r), target))
             if args.smooth:
                 results.append(r)
@@ -464,14 +461,11 @@ def cmd_track(args) -> int:
 
 
 def _targets(stream, follow):
-    """`(result, (anchor, target) or None)` for each frame of the tracker's `stream`
-    (`follow`: `follow_click` over it, or None without `--point`)."""
+    """`(result, anchor, target)` for each frame of the tracker's `stream` (`follow`:
+    `follow_click` over it; None without `--point`: no anchor, no target)."""
     if follow is None:
-        for r in stream:
-            yield r, None
-        return
-    for r, anchor, target in follow:
-        yield r, (None if target is None else (anchor, target))
+        return ((r, None, None) for r in stream)
+    return follow
 
 
 def _video_writer(path: str, frames, size: tuple[int, int]):

@@ -375,8 +375,14 @@ def test_point_is_followed_through_the_sequence(sequence, capsys, monkeypatch):
     assert {"/world/target", "/world/camera/image/target"} <= entities
 
 
-def test_point_frame_needs_point(sequence, capsys):
+def test_point_frame_needs_point_and_a_click_beside_the_box_follows_nothing(sequence, capsys):
     argv = ["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
-            str(sequence["camera"]), "--point-frame", "3"]  # fmt: skip
-    assert main(argv) == 2
+            str(sequence["camera"])]  # fmt: skip
+    assert main([*argv, "--point-frame", "3"]) == 2
     assert "--point-frame needs --point" in capsys.readouterr().err
+    out = sequence["tmp"] / "beside.json"
+    rc = main([*argv, "--init-pose", str(sequence["pose"]), "--frames", "3", "--point", "2",
+               "2", "--json", str(out)])  # fmt: skip
+    assert rc == 0 and "meets no face of the model" in capsys.readouterr().out.replace("\n", " ")
+    frames = json.loads(out.read_text())["frames"]
+    assert [f["target"] for f in frames] == [None] * 3
