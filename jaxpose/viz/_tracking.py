@@ -16,7 +16,12 @@ Entity paths (the world is the camera frame, OpenCV's: x right, y down, z forwar
 | `world/model` | the model's wireframe at the frame's pose (3D) |
 | `world/trajectory` | the model centre's path over the frames with a pose so far (3D) |
 | `metrics/error_px`, `metrics/inliers`, `metrics/ms` | per-frame scalars |
+| `metrics/rotation_std_deg`, `metrics/translation_std` | the pose's spread (below) |
+| `world/target`, `world/camera/image/target` | a followed click (`jaxpose track --point`) |
 | `status` | one log line per frame: its status |
+
+The pose's spread: the square roots of the traces of the rotation and translation
+blocks of `jaxpose.apps.frame_covariance` (degrees, model units), on frames with a pose.
 
 Plain numpy and OpenCV; `rerun` is imported only when a recording is made.
 """
@@ -28,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..apps._track import TrackedFrame
+from ..apps._track_solve import frame_covariance
 from ..apps._visibility import MeshGeometry, edge_samples
 from ._rerun_common import _rr, _strips3d
 
@@ -119,6 +125,9 @@ def track_blueprint() -> rrb.Blueprint:
                 rrb.TimeSeriesView(origin="metrics/error_px", name="RMS residual (px)"),
                 rrb.TimeSeriesView(origin="metrics/inliers", name="measurements used"),
                 rrb.TimeSeriesView(origin="metrics/ms", name="time per frame (ms)"),
+                rrb.TimeSeriesView(
+                    origin="metrics/rotation_std_deg", name="rotation std (deg, noise only)"
+                ),
                 rrb.TextLogView(origin="status", name="status"),
             ),
             row_shares=[3, 2],
@@ -188,6 +197,13 @@ def log_tracked_frame(
     rec.log("metrics/error_px", rr.Scalars(float(result.rms)))
     rec.log("metrics/inliers", rr.Scalars(float(result.edges + result.points)))
     rec.log("metrics/ms", rr.Scalars(float(result.ms)))
+    spread = frame_covariance(result)
+    if spread is not None:
+        cov = np.asarray(spread.covariance)
+        blocks = (cov[:3, :3], cov[3:, 3:])
+        rotation, translation = (max(float(np.trace(b)), 0.0) ** 0.5 for b in blocks)
+        rec.log("metrics/rotation_std_deg", rr.Scalars(np.degrees(rotation)))
+        rec.log("metrics/translation_std", rr.Scalars(translation))
     level = "WARN" if result.status == "lost" else "INFO"
     text = (f"frame {result.frame}: {result.status}, {result.edges} edges, "
             f"{result.points} points, {result.rms:.2f} px, {result.ms:.1f} ms")  # fmt: skip

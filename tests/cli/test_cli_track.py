@@ -124,6 +124,7 @@ def test_rendered_folder_with_a_full_occlusion(sequence, capsys, monkeypatch):
     entities = {chunk.entity_path for chunk in RrdReader(out["rrd"]).stream()}
     wanted = {"/world/camera/image", "/world/camera/image/edges", "/world/model",
               "/world/trajectory", "/metrics/error_px", "/metrics/inliers", "/metrics/ms",
+              "/metrics/rotation_std_deg", "/metrics/translation_std",
               "/status"}  # fmt: skip
     assert wanted <= entities, wanted - entities
 
