@@ -53,7 +53,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..api._programs import bucket_points, program
 from ..geometry._numerics import masked_centroid
-from ..geometry._rotation import rotvec_to_matrix
+from ..geometry._rotation import hat, rotvec_to_matrix
 from ..solvers._linalg import cholesky_solve, symmetric_pinv
 from ..strategy._covariance import PoseCovariance
 
@@ -339,15 +339,15 @@ def _covariance(R, t, model, planes, mask, weights, scales):
     inv, rank, _ = symmetric_pinv(A)
     # (dt, r) -> (w, dt'): w = r, dt' = dt - hat(t - centre) r (the rotation about the
     # camera frame's origin, as `jaxpose.pose_covariance` reports it)
-    a = t - centre
-    hat = jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]], t.dtype)
     eye, zero = jnp.eye(3, dtype=t.dtype), jnp.zeros((3, 3), t.dtype)
-    T = jnp.block([[zero, eye], [eye, -hat]])
+    T = jnp.block([[zero, eye], [eye, -hat(t - centre)]])
     cov = T @ inv @ T.T
     return 0.5 * (cov + cov.T), rank
 
 
 _COVARIANCE = program(_covariance)
+#: The rows `frame_covariance` last answered for, and its answer.
+_LAST: list = [None, None]
 
 
 def frame_covariance(result) -> PoseCovariance | None:
@@ -374,6 +374,8 @@ def frame_covariance(result) -> PoseCovariance | None:
     rows = getattr(result, "rows", None)
     if rows is None or not getattr(result, "ok", False) or not np.any(rows.weights > 0):
         return None
+    if _LAST[0] is rows:  # (the same frame asked again: `--point` and `--rrd` both ask)
+        return _LAST[1]
     U = len(rows.weights)
     size = bucket_points(U)
     f = _float()
@@ -390,7 +392,8 @@ def frame_covariance(result) -> PoseCovariance | None:
     used = rows.weights > 0
     edges = used & ~rows.point
     sigma = rows.scales[edges][0] if np.any(edges) else rows.scales[used][0]
-    return PoseCovariance(cov, jnp.asarray(sigma, cov.dtype), rank)
+    _LAST[:] = rows, PoseCovariance(cov, jnp.asarray(sigma, cov.dtype), rank)
+    return _LAST[1]
 
 
 def moved_pixels(K, model: np.ndarray, a: tuple, b: tuple) -> float:

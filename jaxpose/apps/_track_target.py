@@ -19,14 +19,13 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
-import jax
 import numpy as np
 
 from ..api._programs import program
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
 from ._track import _undistort
-from ._track_solve import frame_covariance
+from ._track_solve import _float, frame_covariance
 from ._visibility import _check_pose, project
 
 if TYPE_CHECKING:
@@ -92,13 +91,16 @@ def _faces(model):
     return polyhedron_faces(model)
 
 
+_PICK = program(_pick_run)
+
+
 def _hit(faces, K, R, t, pixel) -> tuple[np.ndarray, int, bool]:
     from ._pointing import PointingStatus
 
-    f = jax.dtypes.canonicalize_dtype(np.float64).type
-    args = (K, faces.vertices, faces.mask, R, t, pixel)
-    args = tuple(a if a.dtype == bool else np.asarray(a, f) for a in map(np.asarray, args))
-    point, face, status = program(_pick_run)(*args)
+    f = _float()
+    args = (K, faces.vertices, R, t, pixel)
+    K, vertices, R, t, pixel = (np.asarray(a, f) for a in args)
+    point, face, status = _PICK(K, vertices, faces.mask, R, t, pixel)
     return np.asarray(point, np.float64), int(face), int(status) == PointingStatus.OK
 
 
@@ -112,9 +114,7 @@ def _follow(anchor: Anchor, faces, K, dist, R, t, frame: int, pose_cov=None) -> 
     cov = None
     if pose_cov is not None:
         # p = exp(hat(w)) R m + t + dt: dp / d(w, dt) = [-hat(R m), I]
-        a = R @ anchor.point
-        J = np.array([[0.0, a[2], -a[1], 1, 0, 0], [-a[2], 0.0, a[0], 0, 1, 0],
-                      [a[1], -a[0], 0.0, 0, 0, 1]])  # fmt: skip
+        J = np.hstack([-np.cross(np.eye(3), R @ anchor.point), np.eye(3)])  # (rows e_i x a)
         cov = J @ pose_cov @ J.T
         cov = 0.5 * (cov + cov.T)
     depth = float(p[2])

@@ -179,12 +179,14 @@ def _with_target(row: dict[str, Any], target) -> dict[str, Any]:
     camera's axes from the frame's pose covariance (null where the frame has none)."""
     import numpy as np
 
-    row["target"] = None if target is None else [float(x) for x in target.point]
-    row["target_px"] = None if target is None else [float(x) for x in target.pixel]
-    row["target_visible"] = None if target is None else bool(target.visible)
-    cov = None if target is None else target.covariance
-    std = None if cov is None else np.sqrt(np.maximum(np.diagonal(cov), 0))
-    row["target_std"] = None if std is None else [float(x) for x in std]
+    row.update(target=None, target_px=None, target_visible=None, target_std=None)
+    if target is not None:
+        row.update(target=[float(x) for x in target.point],
+                   target_px=[float(x) for x in target.pixel],
+                   target_visible=bool(target.visible))  # fmt: skip
+        if target.covariance is not None:
+            std = np.sqrt(np.maximum(np.diagonal(target.covariance), 0))
+            row["target_std"] = [float(x) for x in std]
     return row
 
 
