@@ -4,7 +4,8 @@ conditions x starts, a few trajectories each, with known poses.
 Objects (`OBJECTS`):
 
 - `box_flat`: the box of OpenCV's tutorial (`box.ply`, cm), faces flat-shaded (one grey
-  level each), 480 x 360, f = 600 px, about 80 cm away;
+  level each, which its mesh carries as `face_colours`, as a PLY file with face colours
+  would), 480 x 360, f = 600 px, about 80 cm away;
 - `box_photo`: the same box textured from its photograph (`face_textures`, printed
   borders a few pixels inside the edges), lit by a directional light;
 - `prism`: the bench's object (`default_bench()`: the paper's 12-sided cross prism, mm)
@@ -36,9 +37,10 @@ except for the `recognition` start of `box_photo`, which has the box's textured 
 (OpenCV's tutorial ORB model, `cookies_ORB.yml.gz`, made from the photograph its
 textures come from) as `jaxpose track --textured` has it: the mesh's pose or its
 half-turned twin nearest the keypoints' pose (`recognition_reinit`); on the first frame
-and after every lost one. Recognition from the mesh alone cannot tell the box from its
-half-turned twins (they show the same edges), the keypoints can. `box_flat` and the prism have no
-texture: the mesh alone. (Only the initial and re-initial poses come from the
+and after every lost one. Recognition from the mesh's edges alone cannot tell the box
+from its half-turned twins (they show the same edges); the keypoints can, and so can the
+flat box's face colours (the twin whose faces' grey levels the frame shows). `box_flat`
+and the prism have no texture: the mesh alone. (Only the initial and re-initial poses come from the
 keypoints: as with `jaxpose track --textured`, the tracker's own measurements are edges
 and KLT points, `track`'s `textured` is not passed.)
 
@@ -60,6 +62,7 @@ its `recognition` (`"mesh"` or `"textured"`).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -109,7 +112,11 @@ class _Object:
             self.R0 = cv2.Rodrigues(np.array([2.2, -0.6, 0.4]))[0]
             self.t0 = np.array([0.0, 0.0, 80.0]) - self.R0 @ centre
             if name == "box_flat":
-                self.style = dict(shades=np.array([200.0, 90.0, 150.0, 240.0, 120.0, 60.0]))
+                shades = np.array([200.0, 90.0, 150.0, 240.0, 120.0, 60.0])
+                self.style = dict(shades=shades)
+                grey = np.repeat(shades[:, None], 3, axis=1)  # (the mesh's face colours)
+                self.mesh = dataclasses.replace(self.mesh, face_colours=grey)
+                self.geo = mesh_geometry(self.mesh)
             else:
                 photo = cv2.imread(str(sample_path("opencv_pose_box", "resized_IMG_3875.JPG")))
                 K_photo = np.array([[1384.484, 0, 359], [0, 1385.235, 240], [0, 0, 1.0]])

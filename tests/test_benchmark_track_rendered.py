@@ -112,6 +112,43 @@ def test_the_keypoints_choose_the_twin_the_mesh_places(box_photo):
     assert angle(R) < 0.5
 
 
+def test_the_flat_box_from_recognition_by_its_face_colours():
+    # The flat-shaded box's edges cannot tell it from its half-turned twins: recognition
+    # from the mesh alone started this run in clutter (trajectory 1) on a twin, 180
+    # degrees off (and 5 of the 6 first frames of clutter and the partial occlusion);
+    # its mesh's face colours (the grey levels it is drawn with) pick the right one.
+    import dataclasses
+
+    from jaxpose.apps import mesh_geometry, recognition_reinit
+    from jaxpose.apps._symmetry import by_colour, symmetries, turned
+    from jaxpose.features._moving_edges import _grey
+
+    box = bench._Object("box_flat")
+    assert box.mesh.face_colours is not None
+    images, Rs, ts, _ = bench.sequence(box, "clutter", 24, 1, keep=1)
+    turns = [S for S, _ in symmetries(box.geo)]
+
+    def angles(R):  # to the true pose, and up to the box's symmetries
+        one = lambda A: np.degrees(np.arccos(np.clip((np.trace(R @ A.T) - 1) / 2, -1, 1)))
+        return one(Rs[0]), min(one(Rs[0] @ S) for S in [np.eye(3), *turns])
+
+    plain = dataclasses.replace(box.mesh, face_colours=None)
+    R, _ = recognition_reinit(plain, box.K)(images[0], 0)
+    off, up_to = angles(R)
+    assert off > 90 and up_to < 0.5  # a twin
+    R, _ = recognition_reinit(box.mesh, box.K)(images[0], 0)
+    assert angles(R)[0] < 0.5
+    # `by_colour` itself: the true pose among its twins, whichever comes first; the
+    # first where the model has no colours.
+    truth = (Rs[0], ts[0])
+    twins = [turned(*truth, S, c) for S, c in symmetries(box.geo)]
+    grey = _grey(images[0])
+    for k in range(len(twins) + 1):
+        poses = twins[:k] + [truth] + twins[k:]
+        assert by_colour(grey, box.geo, box.K, None, poses) == k
+    assert by_colour(grey, mesh_geometry(plain), box.K, None, twins + [truth]) == 0
+
+
 def test_the_figures_of_a_run():
     # A stand-in for `track`'s results: lost while hidden, back one frame later, one
     # frame off target, and the box's half turn counted only up to symmetry.

@@ -1,16 +1,19 @@
 """Polyhedral models from meshes: PLY files read into a `Polyhedron` and written back.
 
 A PLY file (ASCII, or binary little- or big-endian) lists `vertex` elements with `x y z`
-and `face` elements with a `vertex_indices` (or `vertex_index`) list; other properties
-and elements are read past. A triangulated mesh does not list the faces the paper's
-method sees, so `read_ply` rebuilds them:
+and `face` elements with a `vertex_indices` (or `vertex_index`) list; colours (`red`,
+`green`, `blue` on the faces, or else on the vertices, averaged over each face's) become
+the model's `face_colours`; other properties and elements are read past. A
+triangulated mesh does not list the faces the paper's method sees, so `read_ply`
+rebuilds them:
 
 1. faces of zero area are dropped;
 2. the faces are oriented consistently (a face and its neighbour across an edge run
    that edge in opposite directions), and each connected part is turned so that its
    signed volume is positive: normals point out of a closed mesh;
 3. neighbouring faces in one plane (normals within `angle_tol`, distances within
-   `plane_tol` of the mesh's size) are merged, and each merged group's boundary, when
+   `plane_tol` of the mesh's size, and of one colour) are merged, and each merged
+   group's boundary, when
    it is one loop, becomes one polygon face, counter-clockwise seen from outside;
 4. the polygons' sides are the edges: a box's twelve triangles give six quads and
    twelve edges, without the face diagonals.
@@ -229,11 +232,15 @@ def _loops(directed: list[tuple[int, int]]) -> list[list[int]] | None:
 
 
 def _polygons(
-    vertices: np.ndarray, faces: list[list[int]], angle_tol: float, plane_tol: float
-) -> list[tuple[int, ...]]:
-    """The faces of a mesh with coplanar neighbours merged into polygons (see the module
-    docstring), each starting at its smallest vertex index, in the order of their first
-    face in the file."""
+    vertices: np.ndarray,
+    faces: list[list[int]],
+    angle_tol: float,
+    plane_tol: float,
+    colours: np.ndarray | None = None,
+) -> tuple[list[tuple[int, ...]], np.ndarray | None]:
+    """The faces of a mesh with coplanar neighbours of one colour merged into polygons
+    (see the module docstring), each starting at its smallest vertex index, in the order
+    of their first face in the file; and their colours (`colours`: one per face)."""
     edges = _neighbours(faces)
     faces = _orient(vertices, faces, edges)
     normals = polygon_normals(vertices, faces)
@@ -253,12 +260,13 @@ def _polygons(
             continue
         i, j = shared
         same_plane = abs(offsets[i] - offsets[j]) <= plane_tol * scale
-        if normals[i] @ normals[j] >= cos_tol and same_plane:
+        same_colour = colours is None or np.array_equal(colours[i], colours[j])
+        if normals[i] @ normals[j] >= cos_tol and same_plane and same_colour:
             parent[root(i)] = root(j)
     groups: dict[int, list[int]] = {}
     for i in range(len(faces)):
         groups.setdefault(root(i), []).append(i)
-    out = []
+    out, kept = [], []
     for members in sorted(groups.values(), key=min):
         directed = {side for i in members for side in _sides(faces[i])}
         boundary = [(u, v) for u, v in sorted(directed) if (v, u) not in directed]
@@ -270,7 +278,8 @@ def _polygons(
         for loop in chosen:
             k = int(np.argmin(loop))
             out.append(tuple(loop[k:] + loop[:k]))
-    return out
+            kept.append(members[0])
+    return out, None if colours is None else colours[kept]
 
 
 def _face_edges(faces) -> np.ndarray:
@@ -335,9 +344,30 @@ def read_ply(
             raise ValueError(f"path {str(path)!r}: faces without a vertex_indices list")
         faces.append([int(i) for i in r[key]])
     stem = path.name.removesuffix(".ply").removesuffix(".PLY")
+    colours = _colours(table, faces, len(vertices), path)
     return _assemble(stem if name is None else name, vertices, faces, [], merge=merge,
                      orient=False, angle_tol=angle_tol, plane_tol=plane_tol, path=path,
-                     drop_flat=merge)  # fmt: skip
+                     drop_flat=merge, colours=colours)  # fmt: skip
+
+
+_RGB = ("red", "green", "blue")
+
+
+def _colours(table: dict[str, list], faces: list[list[int]], count: int, path: Path):
+    """One RGB colour per face, `(F, 3)` float64: the faces' own `red green blue`, or
+    else the mean of their vertices'; None where the file has neither."""
+    for element in ("face", "vertex"):
+        rows = table.get(element)
+        if rows and all(c in rows[0] for c in _RGB):
+            rgb = np.array([[r[c] for c in _RGB] for r in rows], np.float64)
+            if not np.all(np.isfinite(rgb)):
+                raise ValueError(f"path {str(path)!r}: colours contain NaN or infinite values")
+            if element == "face":
+                return rgb
+            if len(rgb) != count:
+                return None
+            return np.array([rgb[f].mean(axis=0) for f in faces]).reshape(-1, 3)
+    return None
 
 
 def _assemble(
@@ -352,11 +382,12 @@ def _assemble(
     plane_tol: float,
     path: Path,
     drop_flat: bool = True,
+    colours: np.ndarray | None = None,
 ) -> Polyhedron:
     """A `Polyhedron` from vertices, faces and extra edges (the one builder of the mesh
     readers: PLY, OBJ, CAO): indices checked, faces of no area dropped (`drop_flat`),
     merged into polygons (`merge`) or only oriented (`orient`), edges the faces' sides
-    and `lines`."""
+    and `lines`; `colours`, one per face, carried to the polygons."""
     if len(vertices) == 0:
         raise ValueError(f"path {str(path)!r}: no vertices")
     if not np.all(np.isfinite(vertices)):
@@ -368,9 +399,11 @@ def _assemble(
         raise ValueError(f"path {str(path)!r}: a line has a bad vertex index")
     if drop_flat:
         extent = max(float(np.ptp(vertices, axis=0).max()), sys.float_info.min)
-        faces = [f for f in faces if np.linalg.norm(_vector_area(vertices[f])) > 1e-12 * extent**2]
+        flat = [np.linalg.norm(_vector_area(vertices[f])) > 1e-12 * extent**2 for f in faces]
+        faces = [f for f, keep in zip(faces, flat, strict=True) if keep]
+        colours = None if colours is None else colours[np.asarray(flat, bool)]
     if merge and faces:
-        polygons = _polygons(vertices, faces, angle_tol, plane_tol)
+        polygons, colours = _polygons(vertices, faces, angle_tol, plane_tol, colours)
     elif orient and faces:
         polygons = [tuple(f) for f in _orient(vertices, faces, _neighbours(faces))]
     else:
@@ -378,14 +411,18 @@ def _assemble(
     sides = _face_edges(polygons)
     extra = np.array([(min(a, b), max(a, b)) for a, b in lines if a != b], np.int32)
     edges = np.unique(np.vstack([sides, extra.reshape(-1, 2)]), axis=0).astype(np.int32)
-    return Polyhedron(name=name, vertices=vertices, edges=edges, faces=tuple(polygons))
+    if colours is not None and len(colours) != len(polygons):
+        colours = None  # (no faces)
+    return Polyhedron(name=name, vertices=vertices, edges=edges, faces=tuple(polygons),
+                      face_colours=colours)  # fmt: skip
 
 
 @no_type_check
 def write_ply(path: str | os.PathLike, model: Polyhedron, *, binary: bool = False) -> None:
     """Write a `Polyhedron` as a PLY file (`read_ply` reads it back): vertices as
     doubles, its polygon faces as `vertex_indices` lists (its edges are the faces'
-    sides, so they are not written).
+    sides, so they are not written), with their `red green blue` (uchar) where the model
+    has `face_colours`.
 
     **Arguments:**
     - `path`: the file.
@@ -401,6 +438,12 @@ def write_ply(path: str | os.PathLike, model: Polyhedron, *, binary: bool = Fals
     vertices = np.asarray(model.vertices, dtype=np.float64).reshape(-1, 3)
     faces = [tuple(int(i) for i in f) for f in model.faces]
     count = "uchar" if all(len(f) < 256 for f in faces) else "int"
+    rgb = None
+    if model.face_colours is not None:
+        rgb = np.clip(np.round(np.asarray(model.face_colours, np.float64)), 0, 255)
+        if rgb.shape != (len(faces), 3):
+            raise ValueError(f"model.face_colours must be (F, 3), got {rgb.shape}")
+        rgb = rgb.astype(np.uint8)
     header = "\n".join(
         [
             "ply",
@@ -412,19 +455,23 @@ def write_ply(path: str | os.PathLike, model: Polyhedron, *, binary: bool = Fals
             "property double z",
             f"element face {len(faces)}",
             f"property list {count} int vertex_indices",
+            *([] if rgb is None else [f"property uchar {c}" for c in _RGB]),
             "end_header",
             "",
         ]
     ).encode("ascii")
     if binary:
         parts = [header, vertices.astype("<f8").tobytes()]
-        for f in faces:
+        for k, f in enumerate(faces):
             parts.append(np.array([len(f)], "<" + _TYPES[count]).tobytes())
             parts.append(np.array(f, "<i4").tobytes())
+            if rgb is not None:
+                parts.append(rgb[k].tobytes())
         body = b"".join(parts)
     else:
         lines = [" ".join(repr(float(x)) for x in v) for v in vertices]
-        lines += [" ".join(str(i) for i in (len(f), *f)) for f in faces]
+        lines += [" ".join(str(i) for i in (len(f), *f, *([] if rgb is None else rgb[k])))
+                  for k, f in enumerate(faces)]  # fmt: skip
         body = header + ("\n".join(lines) + "\n").encode("ascii")
     try:
         Path(path).write_bytes(body)

@@ -19,12 +19,15 @@ __all__ = ["Polyhedron", "polygon_normals", "prism", "seen_vertices"]
 @dataclasses.dataclass(frozen=True)
 class Polyhedron:
     """A polyhedral model: vertices `(V, 3)`, edges `(E, 2)` and faces (lists of indices,
-    counter-clockwise seen from outside, so that the right-hand normal points out)."""
+    counter-clockwise seen from outside, so that the right-hand normal points out);
+    `face_colours`, where the model has them (a PLY file's face or vertex colours), one
+    RGB colour per face, `(F, 3)` in 0..255, else None."""
 
     name: str
     vertices: np.ndarray
     edges: np.ndarray
     faces: tuple[tuple[int, ...], ...]
+    face_colours: np.ndarray | None = None
 
 
 def prism(name: str, outline: np.ndarray, thickness: float) -> Polyhedron:

@@ -15,6 +15,10 @@ it 0.23-0.36 degree; on three first frames (clutter, motion blur) 0.75-1.75 agai
 0.51-0.59 degree, and where the mesh found a wrong pose (82 degrees from the keypoints'),
 the keypoints' stood.
 
+A mesh with face colours (`Polyhedron.face_colours`, e.g. a PLY file's) tells its twins
+apart by them (`by_colour`): the recognised pose, or its twin whose faces' colours agree
+with the frame's grey levels.
+
 Plain numpy around the recognition front end (whose compiled programs are stored, see
 `jaxpose.api._programs`).
 """
@@ -31,7 +35,7 @@ from ..features._vertices import MAX_VERTICES
 from ..geometry._rotation import rotation_angle
 from ..geometry._validate import as_dist_coeffs, as_intrinsics, no_type_check
 from ._polyhedron import Polyhedron
-from ._symmetry import symmetries, turned
+from ._symmetry import by_colour, symmetries, turned
 from ._visibility import MeshGeometry, mesh_geometry
 
 __all__ = ["AGREE", "MORE_VERTICES", "recognition_reinit"]
@@ -61,7 +65,9 @@ def recognition_reinit(
     recognition (see the module docstring).
 
     **Arguments:**
-    - `model`: the `Polyhedron` tracked (or its `MeshGeometry`).
+    - `model`: the `Polyhedron` tracked (or its `MeshGeometry`); with `face_colours`,
+      of the recognised pose and its half-turned twins the one whose faces' colours the
+      frame shows (`by_colour`).
     - `camera_matrix` `(3, 3)`, `dist_coeffs`: the camera (OpenCV's conventions).
     - `textured`: a `TexturedModel` of the object: where its keypoints give a pose
       (enough inliers), the mesh's pose or its half-turned twin nearest it within
@@ -80,6 +86,7 @@ def recognition_reinit(
     """
     import cv2
 
+    from ..features._moving_edges import _grey
     from ._recognize import recognize
     from ._textured import locate_textured
 
@@ -101,7 +108,9 @@ def recognition_reinit(
         tries.append(front_end | {"max_vertices": more_vertices})
     K = as_intrinsics(camera_matrix, "camera_matrix")
     dist = as_dist_coeffs(dist_coeffs, "dist_coeffs")
-    twin_turns = symmetries(mesh_geometry(model)) if textured is not None else []
+    geo = mesh_geometry(model)
+    coloured = mesh.face_colours is not None
+    twin_turns = symmetries(geo) if textured is not None or coloured else []
 
     def mesh_pose(frame: np.ndarray, fronts: list[dict]) -> tuple[np.ndarray, np.ndarray] | None:
         """The mesh's first detection in `frame`, with the front ends of `fronts` tried
@@ -109,7 +118,11 @@ def recognition_reinit(
         for front in fronts:
             found = recognize(frame, [mesh], K, dist, front_end=front, **options).detections
             if found:
-                return np.asarray(found[0].R, np.float64), np.asarray(found[0].t, np.float64)
+                pose = np.asarray(found[0].R, np.float64), np.asarray(found[0].t, np.float64)
+                if coloured and twin_turns:  # the twin the faces' colours show
+                    twins = [pose] + [turned(*pose, S, c) for S, c in twin_turns]
+                    pose = twins[by_colour(_grey(frame), geo, K, dist, twins)]
+                return pose
         return None
 
     def reinit(frame: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:

@@ -1,15 +1,16 @@
 """A model's half-turn symmetries and near twins (issue #32's tracker): half-turns about
 its principal axes that map its vertices onto themselves (a box's three: its edges alone
 cannot tell them apart) or nearly (the bench's cross prism: recognition from the edges
-may return the twin, whose edges fit the image a few pixels off)."""
+may return the twin, whose edges fit the image a few pixels off). A model with face
+colours tells its twins apart by them (`by_colour`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._visibility import MeshGeometry
+from ._visibility import MeshGeometry, face_labels
 
-__all__ = ["NEAR_TWIN", "symmetries", "turned"]
+__all__ = ["NEAR_TWIN", "by_colour", "symmetries", "turned"]
 
 
 def symmetries(geo: MeshGeometry, within: float = 1e-6) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -47,3 +48,46 @@ def turned(R: np.ndarray, t: np.ndarray, S: np.ndarray, c: np.ndarray) -> tuple:
     `R S` and `t + R (c - S c)`, so that each vertex lands where its image under the
     turn was."""
     return R @ S, t + R @ (c - S @ c)
+
+
+#: Pixels taken off each face's area before its grey level is read (`by_colour`): its
+#: edges, blurred or a pixel off, are left out.
+FACE_INSET = 3
+
+#: The fewest pixels a face shows, after `FACE_INSET`, for `by_colour` to read it.
+FACE_PIXELS = 30
+
+
+def by_colour(grey: np.ndarray, geo: MeshGeometry, K, dist, poses: list[tuple]) -> int:
+    """Of `poses` (a pose and its twins: each shows the same faces' outlines), the index
+    of the one whose faces' colours agree best with the frame's grey levels; 0 where the
+    model has no `face_colours` or no pose agrees better than the first.
+
+    Each face the pose shows (over `FACE_PIXELS` pixels, `FACE_INSET` in from its
+    border) is read as the median grey of the frame there; a pose scores, over the pairs
+    of faces it shows, the order of their greys weighted by how far apart the model's
+    greys are (`sum sign(g_i - g_j) (c_i - c_j)`, `c` the faces' colours as grey). Only
+    the order counts: whatever the lighting's gain and offset, and most clutter and
+    occlusion (medians), the right pose scores highest.
+    """
+    import cv2
+
+    colours = geo.model.face_colours
+    if colours is None or len(poses) < 2:
+        return 0
+    tone = np.asarray(colours, np.float64) @ np.array([0.299, 0.587, 0.114])
+    size = (grey.shape[1], grey.shape[0])
+    kernel = np.ones((2 * FACE_INSET + 1, 2 * FACE_INSET + 1), np.uint8)
+    scores = []
+    for R, t in poses:
+        labels = face_labels(geo, K, dist, R, t, size)
+        seen, levels = [], []
+        for f in np.unique(labels[labels >= 0]):
+            inside = cv2.erode((labels == f).astype(np.uint8), kernel).astype(bool)
+            if np.count_nonzero(inside) >= FACE_PIXELS:
+                seen.append(f)
+                levels.append(float(np.median(grey[inside])))
+        c, g = tone[seen], np.array(levels)
+        scores.append(float(np.sum(np.sign(g[:, None] - g[None]) * (c[:, None] - c[None]))) / 2)
+    best = int(np.argmax(scores))
+    return best if scores[best] > scores[0] else 0

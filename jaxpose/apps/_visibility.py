@@ -428,18 +428,33 @@ def face_mask(
     """
     import cv2
 
+    if isinstance(erode, bool) or not isinstance(erode, int) or erode < 0:
+        raise ValueError(f"erode must be an int >= 0, got {erode!r}")
+    mask = np.where(face_labels(model, K, dist, R, t, image_size) >= 0, 255, 0).astype(np.uint8)
+    if erode:
+        mask = cv2.erode(mask, np.ones((2 * erode + 1, 2 * erode + 1), np.uint8))
+    return mask
+
+
+def face_labels(
+    model: Polyhedron | MeshGeometry, K, dist, R, t, image_size: tuple[int, int]
+) -> np.ndarray:
+    """Which face each pixel shows at pose `(R, t)`: the faces turned towards the camera
+    filled far to near (the nearest face drawn last), `(height, width)` int32 face
+    indices, -1 outside. Arguments as `face_mask`."""
+    import cv2
+
     geo = mesh_geometry(model)
     K, dist, R, t = _check_pose(K, dist, R, t)
     if len(image_size) != 2 or min(int(image_size[0]), int(image_size[1])) < 1:
         raise ValueError(f"image_size must be (width, height) >= 1, got {image_size!r}")
-    if isinstance(erode, bool) or not isinstance(erode, int) or erode < 0:
-        raise ValueError(f"erode must be an int >= 0, got {erode!r}")
     w, h = int(image_size[0]), int(image_size[1])
-    mask = np.zeros((h, w), np.uint8)
-    front = geo.normals @ _camera_in_model(R, t) > geo.offsets
+    labels = np.full((h, w), -1, np.int32)
+    front = np.flatnonzero(geo.normals @ _camera_in_model(R, t) > geo.offsets)
+    depth = [float((geo.corners[f] @ R.T + t)[:, 2].mean()) for f in front]
     steps = 1 if dist is None else 8
     shift = 4
-    for f in np.flatnonzero(front):
+    for f in front[np.argsort(depth)[::-1]]:
         cam = geo.corners[f] @ R.T + t
         if np.any(cam[:, 2] <= 0):
             continue  # a face crossing the camera plane: left out
@@ -447,10 +462,8 @@ def face_mask(
         if not np.all(np.abs(outline) < 1e6):
             continue
         poly = np.round(outline * (1 << shift)).astype(np.int32)
-        cv2.fillPoly(mask, [poly], 255, cv2.LINE_8, shift)
-    if erode:
-        mask = cv2.erode(mask, np.ones((2 * erode + 1, 2 * erode + 1), np.uint8))
-    return mask
+        cv2.fillPoly(labels, [poly], int(f), cv2.LINE_8, shift)
+    return labels
 
 
 @no_type_check

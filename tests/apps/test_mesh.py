@@ -116,6 +116,69 @@ def test_polygons_kept(tmp_path):
     same_outward_faces(again, solid)
 
 
+def write_coloured(path: Path, colours, where: str = "face") -> Polyhedron:
+    """The box's twelve triangles as an ASCII PLY with `colours` (one RGB per triangle,
+    or per vertex with `where="vertex"`); returns the triangles read unmerged."""
+    tris = read_ply(BOX, merge=False)
+    rgb = ["property uchar red", "property uchar green", "property uchar blue"]
+    head = ["ply", "format ascii 1.0", f"element vertex {len(tris.vertices)}",
+            "property double x", "property double y", "property double z",
+            *(rgb if where == "vertex" else []), f"element face {len(tris.faces)}",
+            "property list uchar int vertex_indices", *(rgb if where == "face" else []),
+            "end_header"]  # fmt: skip
+    c = [" ".join(str(int(x)) for x in row) for row in colours]
+    vertices = [" ".join(map(repr, v.tolist())) for v in tris.vertices]
+    faces = [" ".join(map(str, (3, *f))) for f in tris.faces]
+    if where == "vertex":
+        vertices = [f"{v} {k}" for v, k in zip(vertices, c, strict=True)]
+    else:
+        faces = [f"{f} {k}" for f, k in zip(faces, c, strict=True)]
+    path.write_text("\n".join(head + vertices + faces) + "\n")
+    return tris
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_face_colours_read_merged_and_written_back(tmp_path, binary):
+    # Each side of the box one colour, but for one side whose two triangles differ: its
+    # triangles are not merged (the colour change is an edge), and each face keeps its
+    # triangles' colour, written back and read again.
+    tris = read_ply(BOX, merge=False)
+    side = {}  # each triangle's side: the coordinate its three vertices share
+    for k, f in enumerate(tris.faces):
+        p = tris.vertices[list(f)]
+        axis = int(np.argmin(np.ptp(p, axis=0)))
+        side[k] = (axis, round(float(p[0, axis]), 6))
+    names = sorted(set(side.values()))
+    colours = np.array([[40 * names.index(side[k]), 10, 200] for k in range(len(side))])
+    split = [k for k in side if side[k] == names[0]][1]
+    colours[split] = [255, 0, 0]
+    write_coloured(tmp_path / "c.ply", colours)
+    box = read_ply(tmp_path / "c.ply")
+    assert len(box.faces) == 7 and box.face_colours.shape == (7, 3)
+    assert sorted(len(f) for f in box.faces) == [3, 3, 4, 4, 4, 4, 4]
+    for f, c in zip(box.faces, box.face_colours, strict=True):
+        # the colour of the triangles the face came from (its vertices cover theirs)
+        mine = [k for k, t in enumerate(tris.faces) if set(t) <= set(f)]
+        assert mine and all(np.array_equal(colours[k], c) for k in mine)
+    write_ply(tmp_path / "again.ply", box, binary=binary)
+    again = read_ply(tmp_path / "again.ply")
+    assert again.faces == box.faces
+    np.testing.assert_array_equal(again.face_colours, box.face_colours)
+    assert read_ply(BOX).face_colours is None  # a mesh without colours has none
+
+
+def test_vertex_colours_averaged_over_each_face(tmp_path):
+    rng = np.random.default_rng(3)
+    colours = rng.integers(0, 256, (8, 3))
+    tris = write_coloured(tmp_path / "v.ply", colours, where="vertex")
+    box = read_ply(tmp_path / "v.ply", merge=False)
+    expected = np.array([colours[list(f)].mean(axis=0) for f in tris.faces])
+    np.testing.assert_allclose(box.face_colours, expected)
+    with pytest.raises(ValueError, match="face_colours"):
+        bad = Polyhedron(box.name, box.vertices, box.edges, box.faces, np.zeros((2, 3)))
+        write_ply(tmp_path / "bad.ply", bad)
+
+
 def test_errors(tmp_path):
     with pytest.raises(ValueError, match="missing.ply"):
         read_ply(tmp_path / "missing.ply")

@@ -101,6 +101,23 @@ def test_depth_test_hides_the_back_box():
     assert plain.visible.sum() > samples.visible.sum()
 
 
+def test_face_labels_show_the_nearest_face(rng):
+    # Where the near box covers the far one, its faces are drawn (the ray cast's nearest
+    # crossing); the labelled area is face_mask's.
+    from jaxpose.apps._visibility import face_labels
+
+    model = _two_boxes()
+    R, t = _pose([0.15, -0.2, 0.0], [-10.0, -10.0, 90.0])
+    labels = face_labels(model, K, None, R, t, SIZE)
+    np.testing.assert_array_equal(labels >= 0, face_mask(model, K, None, R, t, SIZE) > 0)
+    pixels = rng.uniform([0, 0], [639, 479], size=(4000, 2))
+    hits = cast_rays(model, K, None, R, t, pixels)
+    shown = labels[np.round(pixels[:, 1]).astype(int), np.round(pixels[:, 0]).astype(int)]
+    inside = hits.hit & (shown >= 0)
+    assert np.any(inside & (hits.face >= 6))  # the near box in front of the far one
+    assert np.mean(shown[inside] == hits.face[inside]) > 0.99  # (rounding at the seams)
+
+
 @pytest.mark.parametrize("dist", [None, np.array([-0.2, 0.08, 0.001, -0.002, 0.0])])
 def test_cast_rays_land_on_the_mesh(dist, rng):
     R, t = _box_pose()
