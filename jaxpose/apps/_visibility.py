@@ -430,7 +430,10 @@ def face_mask(
 
     if isinstance(erode, bool) or not isinstance(erode, int) or erode < 0:
         raise ValueError(f"erode must be an int >= 0, got {erode!r}")
-    mask = np.where(face_labels(model, K, dist, R, t, image_size) >= 0, 255, 0).astype(np.uint8)
+    w, h = _image_size(image_size)
+    mask = np.zeros((h, w), np.uint8)
+    for _, poly in _face_outlines(model, K, dist, R, t):
+        cv2.fillPoly(mask, [poly], 255, cv2.LINE_8, _SHIFT)
     if erode:
         mask = cv2.erode(mask, np.ones((2 * erode + 1, 2 * erode + 1), np.uint8))
     return mask
@@ -444,26 +447,39 @@ def face_labels(
     indices, -1 outside. Arguments as `face_mask`."""
     import cv2
 
-    geo = mesh_geometry(model)
-    K, dist, R, t = _check_pose(K, dist, R, t)
+    w, h = _image_size(image_size)
+    labels = np.full((h, w), -1, np.int32)
+    for f, poly in _face_outlines(model, K, dist, R, t):
+        cv2.fillPoly(labels, [poly], int(f), cv2.LINE_8, _SHIFT)
+    return labels
+
+
+#: Fractional bits of the pixel coordinates `cv2.fillPoly` is given.
+_SHIFT = 4
+
+
+def _image_size(image_size) -> tuple[int, int]:
     if len(image_size) != 2 or min(int(image_size[0]), int(image_size[1])) < 1:
         raise ValueError(f"image_size must be (width, height) >= 1, got {image_size!r}")
-    w, h = int(image_size[0]), int(image_size[1])
-    labels = np.full((h, w), -1, np.int32)
+    return int(image_size[0]), int(image_size[1])
+
+
+def _face_outlines(model, K, dist, R, t):
+    """`(face, outline)` of each face turned towards the camera, far to near: its
+    projected outline in `cv2.fillPoly`'s fixed point (`_SHIFT`); a face crossing the
+    camera plane, or projected out of range, left out."""
+    geo = mesh_geometry(model)
+    K, dist, R, t = _check_pose(K, dist, R, t)
     front = np.flatnonzero(geo.normals @ _camera_in_model(R, t) > geo.offsets)
-    depth = [float((geo.corners[f] @ R.T + t)[:, 2].mean()) for f in front]
+    cams = [geo.corners[f] @ R.T + t for f in front]
     steps = 1 if dist is None else 8
-    shift = 4
-    for f in front[np.argsort(depth)[::-1]]:
-        cam = geo.corners[f] @ R.T + t
+    for k in np.argsort([-cam[:, 2].mean() for cam in cams], kind="stable"):
+        cam = cams[k]
         if np.any(cam[:, 2] <= 0):
-            continue  # a face crossing the camera plane: left out
-        outline = _outline(cam, K, dist, steps)
-        if not np.all(np.abs(outline) < 1e6):
             continue
-        poly = np.round(outline * (1 << shift)).astype(np.int32)
-        cv2.fillPoly(labels, [poly], int(f), cv2.LINE_8, shift)
-    return labels
+        outline = _outline(cam, K, dist, steps)
+        if np.all(np.abs(outline) < 1e6):
+            yield front[k], np.round(outline * (1 << _SHIFT)).astype(np.int32)
 
 
 @no_type_check
