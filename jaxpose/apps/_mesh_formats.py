@@ -3,9 +3,12 @@ three mesh formats (`read_mesh`: PLY, OBJ, CAO by the file's suffix).
 
 **OBJ.** `v x y z [w]` lines are vertices; `f` lines faces, each corner `i`, `i/t`,
 `i/t/n` or `i//n` with 1-based indices (negative ones count back from the last vertex
-read); `l` lines are polylines, kept as edges. Other statements (normals, texture
-coordinates, groups, materials) are read past. Faces are then rebuilt as `read_ply`
-rebuilds them (coplanar neighbours merged into polygons, oriented outward).
+read); `l` lines are polylines, kept as edges. Materials give the faces their colours
+(`face_colours`: a material's diffuse colour `Kd`, from the `mtllib` files beside the
+OBJ, for the faces after its `usemtl`) where every face has one. Other statements
+(normals, texture coordinates, groups) are read past. Faces are then rebuilt as
+`read_ply` rebuilds them (coplanar neighbours of one colour merged into polygons,
+oriented outward).
 
 **CAO** (the CAD format of ViSP's model-based tracker, as its tutorial describes it):
 text sections, each a count followed by that many rows, `#` starting a comment:
@@ -102,7 +105,8 @@ def read_obj(
       merged into polygons, normals within `angle_tol` radians, planes within
       `plane_tol` of the mesh's largest extent).
 
-    **Returns:** a `Polyhedron` in the file's units; `l` polylines add edges.
+    **Returns:** a `Polyhedron` in the file's units; `l` polylines add edges; its
+    `face_colours` from the materials where every face has one with a `Kd`.
 
     **Raises:** `ValueError` naming the path for an unreadable or malformed file.
     """
@@ -112,6 +116,9 @@ def read_obj(
     vertices: list[list[float]] = []
     faces: list[list[int]] = []
     lines: list[tuple[int, int]] = []
+    diffuse: dict[str, list[float]] = {}  # the materials' Kd, 0..255
+    material: list[float] | None = None
+    colours: list[list[float] | None] = []
     for number, raw in enumerate(_read_text(path).splitlines(), start=1):
         words = raw.split("#", 1)[0].split()
         if not words:
@@ -126,11 +133,41 @@ def read_obj(
             vertices.append(xyz)
         elif words[0] == "f":
             faces.append([_obj_index(w, len(vertices), path, number) for w in words[1:]])
+            colours.append(material)
+        elif words[0] == "mtllib":
+            for library in words[1:]:
+                diffuse |= _read_mtl(path.parent / library)
+        elif words[0] == "usemtl":
+            material = diffuse.get(" ".join(words[1:]))
         elif words[0] == "l":
             chain = [_obj_index(w, len(vertices), path, number) for w in words[1:]]
             lines.extend(zip(chain[:-1], chain[1:], strict=True))
+    coloured = bool(faces) and all(c is not None for c in colours)
     return _build(path, name, vertices, faces, lines, merge=merge, orient=True,
-                  angle_tol=angle_tol, plane_tol=plane_tol)  # fmt: skip
+                  angle_tol=angle_tol, plane_tol=plane_tol,
+                  colours=np.array(colours, np.float64) if coloured else None)  # fmt: skip
+
+
+def _read_mtl(path: Path) -> dict[str, list[float]]:
+    """The diffuse colours (`Kd`, 0..1, as 0..255) of the materials of an MTL file; none
+    where the file cannot be read."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return {}
+    out, name = {}, None
+    for raw in text.splitlines():
+        words = raw.split("#", 1)[0].split()
+        if words[:1] == ["newmtl"]:
+            name = " ".join(words[1:])
+        elif words[:1] == ["Kd"] and name is not None:
+            try:
+                rgb = [255.0 * float(w) for w in words[1:4]]
+            except ValueError:
+                continue
+            if len(rgb) == 3 and all(np.isfinite(rgb)):
+                out[name] = rgb
+    return out
 
 
 def _cao_rows(text: str, path: Path) -> list[list[str]]:

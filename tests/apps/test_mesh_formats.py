@@ -134,6 +134,28 @@ def test_obj_matches_ply(tmp_path):
     assert len(raw.faces) == 12
 
 
+def test_obj_materials_colour_the_faces(tmp_path):
+    # A unit square split into two triangles of two materials, and a quad of a third:
+    # the colours (Kd, 0..1) become face colours, and the two triangles stay apart.
+    (tmp_path / "paint.mtl").write_text(
+        "newmtl red\nKd 1 0 0\nnewmtl dark grey\nKd 0.2 0.2 0.2\n"
+        "newmtl blue  # a comment\nKa 1 1 1\nKd 0 0 1\n"
+    )
+    text = ("mtllib paint.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\n"
+            "usemtl red\nf 1 2 3\nusemtl dark grey\nf 1 3 4\nusemtl blue\nf 1 5 6 2\n")  # fmt: skip
+    (tmp_path / "two.obj").write_text(text)
+    model = read_obj(tmp_path / "two.obj")
+    assert len(model.faces) == 3
+    expected = {(0, 1, 2): [255, 0, 0], (0, 2, 3): [51, 51, 51], (0, 1, 4, 5): [0, 0, 255]}
+    for f, c in zip(model.faces, model.face_colours, strict=True):
+        np.testing.assert_allclose(c, expected[tuple(sorted(f))])
+    # A face without a material (or an unknown one, or no MTL file): no colours at all.
+    (tmp_path / "part.obj").write_text(text.replace("usemtl blue", "usemtl green"))
+    assert read_obj(tmp_path / "part.obj").face_colours is None
+    (tmp_path / "none.obj").write_text(text.replace("paint.mtl", "missing.mtl"))
+    assert read_obj(tmp_path / "none.obj").face_colours is None
+
+
 def test_obj_polyline_edges(tmp_path):
     path = tmp_path / "wire.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\nl 1 3\n")
