@@ -176,12 +176,18 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
         ((b - a) ** 2).sum(axis=1), 1e-300
     )
     keys = samples.edge + np.clip(frac, 0.0, 0.999)
+    # (with the smear, other image edges looked for as far as the first round's search,
+    # those of the model's other edges not counted)
+    others = None if smear is None else _crossings(geo, K, dist, R, t, samples)
     found = moving_edges(grey, samples.pixels, samples.normals, search=search,
                          threshold=options.threshold, mask=samples.visible,
                          contrast=_expected(contrasts, keys), choose=options.choose,
-                         ratio=options.ratio, smear=smear)  # fmt: skip
+                         ratio=options.ratio, smear=smear, reach=options.search,
+                         others=others)  # fmt: skip
     wanted = samples.visible & (samples.outline | (options.edges == "all"))
     keep = found.valid & wanted
+    if found.blurred and found.rival is not None:  # a crease merged with another edge: out
+        keep &= samples.outline | ~found.rival
     q = found.matched[keep]
     ahead = q + np.column_stack([found.normals[keep, 1], -found.normals[keep, 0]])
     qu, au = _undistort(q, K, dist), _undistort(ahead, K, dist)
@@ -190,6 +196,28 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     lines = np.column_stack([n, -(n * qu).sum(axis=1)])
     return samples.points[keep], lines, keys[keep], found.strength[keep], int(wanted.sum())
+
+
+def _crossings(geo: MeshGeometry, K, dist, R, t, samples) -> np.ndarray:
+    """`(S, E)`: where each other model edge seen (one with a visible sample) crosses
+    each sample's normal line, as an offset along the normal (px; NaN where the line
+    misses the edge's projected segment, and for the sample's own edge)."""
+    ends = np.asarray(geo.model.edges)
+    px = project(geo.model.vertices @ R.T + t, K, dist)
+    a, b = px[ends[:, 0]], px[ends[:, 1]]  # (E, 2): straight between the vertices' pixels
+    n = samples.normals / np.maximum(np.linalg.norm(samples.normals, axis=1, keepdims=True), 1e-12)
+    seen = np.zeros(len(ends), bool)
+    seen[samples.edge[samples.visible]] = True
+    # p + s n = a + l (b - a), solved for (s, l) by Cramer's rule
+    ab, rhs = (b - a)[None, :, :], a[None, :, :] - samples.pixels[:, None, :]
+    det = ab[..., 0] * n[:, None, 1] - n[:, None, 0] * ab[..., 1]
+    solvable = np.abs(det) > 1e-9
+    det = np.where(solvable, det, 1.0)
+    s = (ab[..., 0] * rhs[..., 1] - rhs[..., 0] * ab[..., 1]) / det
+    along = (n[:, None, 0] * rhs[..., 1] - n[:, None, 1] * rhs[..., 0]) / det
+    crossed = solvable & (along >= 0) & (along <= 1) & seen[None, :]
+    crossed &= np.arange(len(ends))[None, :] != samples.edge[:, None]
+    return np.where(crossed, s, np.nan)
 
 
 def _sides(geo: MeshGeometry, R, t, grazing: float) -> np.ndarray:

@@ -84,6 +84,10 @@ class EdgeMatches(NamedTuple):
       pixel, signed: positive when the image gets brighter along the normal (0 where not
       `valid`). Pass it as `contrast` on the next frame.
     - `valid`: `(S,)` bool.
+    - `blurred`: whether the call took its frame as blurred (`smear` given and the ramps
+      found about as wide as predicted: the smeared samples were matched as ramps).
+    - `rival`: `(S,)` bool, on a blurred frame, whether a matched sample's line (out to
+      `reach`) shows another image edge than its match (`_rivals`); False elsewhere.
     """
 
     points: np.ndarray
@@ -92,6 +96,8 @@ class EdgeMatches(NamedTuple):
     offset: np.ndarray
     strength: np.ndarray
     valid: np.ndarray
+    blurred: bool = False
+    rival: np.ndarray | None = None
 
 
 def _grey(image) -> np.ndarray:
@@ -178,6 +184,8 @@ def moving_edges(
     choose: str = "strongest",
     ratio: float | None = None,
     smear=None,
+    reach: int | None = None,
+    others=None,
 ) -> EdgeMatches:
     """Find, along each sample's normal, the image edge of the expected orientation (see
     the module docstring).
@@ -208,12 +216,17 @@ def moving_edges(
       `strength` is then the ramp's mean derivative. A smear wider than the image is
       taken as the image's width (a ramp no frame can show).
 
+    - `reach`: on a blurred frame, how far (px, an int; None: `search`, never less)
+      along each matched sample's normal `EdgeMatches.rival` looks for other image
+      edges.
+    - `others`: `(S, M)` offsets (px) along each sample's normal where other edges of
+      the model are predicted to cross its line (NaN: none): an image edge there is no
+      rival (the model explains it). None: none.
+
     **Returns:** `EdgeMatches`.
 
     **Raises:** `ValueError` naming the argument.
     """
-    import cv2
-
     grey = _grey(image)
     points = _points(points, "points", None)
     normals = _points(normals, "normals", len(points))
@@ -246,6 +259,13 @@ def moving_edges(
     n = normals / np.where(length > 1e-12, length, 1.0)[:, None]
     u = np.column_stack([n[:, 1], -n[:, 0]])
     k = int(search)
+    if reach is not None and (isinstance(reach, bool) or not isinstance(reach, int | np.integer)
+                              or reach < 0):  # fmt: skip
+        raise ValueError(f"reach must be an int >= 0 or None, got {reach!r}")
+    if others is not None:
+        others = np.asarray(others, dtype=np.float64)
+        if others.ndim != 2 or len(others) != count or np.any(np.isinf(others)):
+            raise ValueError(f"others must be ({count}, M) offsets, NaN for none")
     halves = np.zeros(count, int)  # the ramp's box of `2 h + 1` derivatives
     if smear is not None:
         smear = np.asarray(smear, dtype=np.float64).reshape(-1)
@@ -267,14 +287,10 @@ def moving_edges(
     keep &= inside
     if count == 0:
         z = np.zeros(0)
-        return EdgeMatches(points, n, points.copy(), z, z, np.zeros(0, bool))
-    flat = coords.reshape(count, -1, 2).astype(np.float32)
-    values = np.concatenate([  # (OpenCV maps have fewer than 32767 rows)
-        cv2.remap(grey, part[..., 0], part[..., 1], cv2.INTER_LINEAR,
-                  borderMode=cv2.BORDER_REPLICATE)
-        for part in np.array_split(flat, -(-count // 32000))
-    ])  # fmt: skip
-    profile = values.reshape(count, len(m), len(tau)).mean(axis=2, dtype=np.float64)
+        return EdgeMatches(
+            points, n, points.copy(), z, z, np.zeros(0, bool), False, np.zeros(0, bool)
+        )
+    profile = _read(grey, coords)
     further = np.diff(profile, axis=1)  # (S, 2 (k + pad) + 1)
     d = further[:, pad : further.shape[1] - pad]  # (S, 2k + 1) at offsets -k..k
     score = np.where(sign[:, None] == 0, np.abs(d), d * sign[:, None])
@@ -323,7 +339,59 @@ def moving_edges(
         offset = np.where(use & valid, ramp_offset - k, np.where(use, 0.0, offset))
         strength = np.where(use & valid, ramp_strength, np.where(use, 0.0, strength))
     matched = points + offset[:, None] * n
-    return EdgeMatches(points, n, matched, offset, strength, valid)
+    rival = np.zeros(count, bool)
+    if ramp is not None and np.any(valid):  # (a blurred frame: the lines looked along)
+        K = max(k, k if reach is None else int(reach))
+        line, wide = d[valid], np.arange(-K - pad, K + pad + 2, dtype=np.float64) - 0.5
+        if K > k:  # (read as far as `reach`)
+            line = np.diff(_read(grey, points[valid, None, None, :]
+                                 + wide[None, :, None, None] * n[valid, None, None, :]
+                                 + tau[None, None, :, None] * u[valid, None, None, :]),
+                           axis=1)[:, pad : 2 * (K + pad) + 1 - pad]  # fmt: skip
+        explained = None if others is None else others[valid] + K
+        rival[valid] = _rivals(line, offset[valid] + K, halves[valid], threshold, explained)
+    return EdgeMatches(points, n, matched, offset, strength, valid, ramp is not None, rival)
+
+
+def _read(grey: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """The grey levels (bilinear) at `coords` `(S, M, T, 2)`, averaged over `T`: `(S, M)`."""
+    import cv2
+
+    count = len(coords)
+    flat = coords.reshape(count, -1, 2).astype(np.float32)
+    values = np.concatenate([  # (OpenCV maps have fewer than 32767 rows)
+        cv2.remap(grey, part[..., 0], part[..., 1], cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE)
+        for part in np.array_split(flat, -(-count // 32000))
+    ])  # fmt: skip
+    return values.reshape(coords.shape[:3]).mean(axis=2, dtype=np.float64)
+
+
+def _rivals(d, at, h, threshold, others=None) -> np.ndarray:
+    """Whether each row of derivatives `d` `(S, 2K + 1)` (offsets -K..K) shows another
+    image edge than its match (at index `at`): a run of contiguous derivatives of one
+    sign, one of them reaching `threshold`, none of them within `h + 1` of the match (`h`:
+    half the box of the predicted smear, 0 for none), nor within `h + 1` of another edge
+    of the model (`others` `(S, M)`, indices; NaN for none), nor at either end of the row
+    (an edge that may lie beyond it).
+
+    A smear merges an edge with any other within its reach into one ramp (on the
+    photo-textured box, the crease at the box's origin with a printed border 2-3 px from
+    it): where the line is clear of other image edges, the ramp found is the edge's own."""
+    count, width = d.shape
+    j = np.arange(width)
+    own = np.abs(j[None, :] - np.asarray(at)[:, None]) <= (np.asarray(h) + 1)[:, None]
+    if others is not None and others.shape[1]:  # (NaN: no edge, never near)
+        near = np.abs(j[None, :, None] - others[:, None, :]) <= (np.asarray(h) + 1)[:, None, None]
+        own |= near.any(axis=2)
+    sign = np.sign(d)
+    before = np.pad(sign, ((0, 0), (1, 0)))[:, :-1]
+    label = np.cumsum(sign != before, axis=1)  # (each run of one sign numbered)
+    rows = np.broadcast_to(np.arange(count)[:, None], label.shape)
+    mine = np.zeros((count, width + 1), bool)
+    np.logical_or.at(mine, (rows, label), own)  # (the runs the match touches)
+    np.logical_or.at(mine, (rows[:, [0, -1]], label[:, [0, -1]]), True)  # (and the ends')
+    return np.any((np.abs(d) >= threshold) & ~mine[rows, label], axis=1)
 
 
 def _ramp_matches(d, sign, expected, ratio, threshold, h, pad):

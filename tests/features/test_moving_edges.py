@@ -188,6 +188,36 @@ def test_a_ramp_of_the_known_smear_is_found_at_its_middle():
     np.testing.assert_array_equal(a.valid, b.valid)
 
 
+def test_a_blurred_frame_flags_another_edge_on_the_line_as_a_rival():
+    # The ramp of the test above (a step of 60 smeared over 8 px, the middle at 29.0)
+    # alone, then with a dark printed line (30 grey levels, 2 px wide) 11 px past its
+    # middle on the lower half of the samples, past the search range: on the blurred
+    # frame, `rival` flags those when it looks that far (`reach`), and no other; the
+    # matches are the same; a sharp frame flags none.
+    rng = np.random.default_rng(5)
+    x = np.arange(80, dtype=np.float64)
+    ramp = 40.0 + 60.0 * np.clip((x + 0.5 - 25.5) / 8.0, 0.0, 1.0)
+    image = np.tile(ramp, (200, 1)) + rng.normal(0.0, 3.0, (200, 80))
+    image[100:, 40:42] -= 30.0
+    points = np.column_stack([np.full(40, 31.3), np.linspace(8, 190, 40)])
+    normals = np.tile([1.0, 0.0], (40, 1))
+    lined = points[:, 1] + 1 >= 100  # (read a pixel either side along the edge)
+    smear = np.full(40, 8.0)
+    near = moving_edges(image, points, normals, search=8, threshold=8.0, smear=smear)
+    far = moving_edges(image, points, normals, search=8, threshold=8.0, smear=smear, reach=14)
+    assert near.blurred and far.blurred and far.valid.all()
+    np.testing.assert_array_equal(near.matched, far.matched)  # (the matches unchanged)
+    np.testing.assert_array_equal(far.rival, lined)
+    assert not np.any(near.rival)
+    # Where another edge of the model is predicted there (the line's edges at 9.2 and
+    # 11.2 px, predicted at 10.2), the line is no rival.
+    model = moving_edges(image, points, normals, search=8, threshold=8.0, smear=smear, reach=14,
+                         others=np.full((40, 1), 10.2))  # fmt: skip
+    assert not np.any(model.rival)
+    sharp = moving_edges(image, points, normals, search=8, threshold=8.0, reach=14)
+    assert not sharp.blurred and not np.any(sharp.rival)
+
+
 def test_a_smear_wider_than_the_image_reads_no_further():
     # A smear from a pose gone far off (a tracker's wild solve: billions of pixels) is
     # taken as the image's width: the call returns, as fast as with that smear, and the
