@@ -199,15 +199,14 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
 
 
 def _crossings(geo: MeshGeometry, K, dist, R, t, samples) -> np.ndarray:
-    """`(S, E)`: where each other model edge seen (one with a visible sample) crosses
-    each sample's normal line, as an offset along the normal (px; NaN where the line
-    misses the edge's projected segment, and for the sample's own edge)."""
-    ends = np.asarray(geo.model.edges)
+    """`(S, M)`: where each of the `M` model edges seen (those with a visible sample)
+    crosses each sample's normal line, as an offset along the normal (px; NaN where the
+    line misses the edge's projected segment, and for the sample's own edge)."""
+    seen = np.unique(samples.edge[samples.visible])
+    ends = np.asarray(geo.model.edges)[seen]
     px = project(geo.model.vertices @ R.T + t, K, dist)
-    a, b = px[ends[:, 0]], px[ends[:, 1]]  # (E, 2): straight between the vertices' pixels
+    a, b = px[ends[:, 0]], px[ends[:, 1]]  # (M, 2): straight between the vertices' pixels
     n = samples.normals / np.maximum(np.linalg.norm(samples.normals, axis=1, keepdims=True), 1e-12)
-    seen = np.zeros(len(ends), bool)
-    seen[samples.edge[samples.visible]] = True
     # p + s n = a + l (b - a), solved for (s, l) by Cramer's rule
     ab, rhs = (b - a)[None, :, :], a[None, :, :] - samples.pixels[:, None, :]
     det = ab[..., 0] * n[:, None, 1] - n[:, None, 0] * ab[..., 1]
@@ -215,8 +214,7 @@ def _crossings(geo: MeshGeometry, K, dist, R, t, samples) -> np.ndarray:
     det = np.where(solvable, det, 1.0)
     s = (ab[..., 0] * rhs[..., 1] - rhs[..., 0] * ab[..., 1]) / det
     along = (n[:, None, 0] * rhs[..., 1] - n[:, None, 1] * rhs[..., 0]) / det
-    crossed = solvable & (along >= 0) & (along <= 1) & seen[None, :]
-    crossed &= np.arange(len(ends))[None, :] != samples.edge[:, None]
+    crossed = solvable & (along >= 0) & (along <= 1) & (seen[None, :] != samples.edge[:, None])
     return np.where(crossed, s, np.nan)
 
 
