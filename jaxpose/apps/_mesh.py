@@ -399,9 +399,9 @@ def _assemble(
         raise ValueError(f"path {str(path)!r}: a line has a bad vertex index")
     if drop_flat:
         extent = max(float(np.ptp(vertices, axis=0).max()), sys.float_info.min)
-        flat = [np.linalg.norm(_vector_area(vertices[f])) > 1e-12 * extent**2 for f in faces]
-        faces = [f for f, keep in zip(faces, flat, strict=True) if keep]
-        colours = None if colours is None else colours[np.asarray(flat, bool)]
+        solid = [np.linalg.norm(_vector_area(vertices[f])) > 1e-12 * extent**2 for f in faces]
+        faces = [f for f, keep in zip(faces, solid, strict=True) if keep]
+        colours = None if colours is None else colours[np.asarray(solid, bool)]
     if merge and faces:
         polygons, colours = _polygons(vertices, faces, angle_tol, plane_tol, colours)
     elif orient and faces:
@@ -411,8 +411,6 @@ def _assemble(
     sides = _face_edges(polygons)
     extra = np.array([(min(a, b), max(a, b)) for a, b in lines if a != b], np.int32)
     edges = np.unique(np.vstack([sides, extra.reshape(-1, 2)]), axis=0).astype(np.int32)
-    if colours is not None and len(colours) != len(polygons):
-        colours = None  # (no faces)
     return Polyhedron(name=name, vertices=vertices, edges=edges, faces=tuple(polygons),
                       face_colours=colours)  # fmt: skip
 

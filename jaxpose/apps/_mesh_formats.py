@@ -152,8 +152,8 @@ def _read_mtl(path: Path) -> dict[str, list[float]]:
     """The diffuse colours (`Kd`, 0..1, as 0..255) of the materials of an MTL file; none
     where the file cannot be read."""
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError:
+        text = _read_text(path)
+    except ValueError:
         return {}
     out, name = {}, None
     for raw in text.splitlines():

@@ -186,7 +186,7 @@ def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, option
                          others=others)  # fmt: skip
     wanted = samples.visible & (samples.outline | (options.edges == "all"))
     keep = found.valid & wanted
-    if found.blurred and found.rival is not None:  # a crease merged with another edge: out
+    if found.rival is not None:  # a crease merged with another edge (blurred frames): out
         keep &= samples.outline | ~found.rival
     q = found.matched[keep]
     ahead = q + np.column_stack([found.normals[keep, 1], -found.normals[keep, 0]])

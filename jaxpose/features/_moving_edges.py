@@ -276,11 +276,7 @@ def moving_edges(
     pad = int(halves.max(initial=0))  # (the profile read further for the boxes)
     m = np.arange(-k - pad, k + pad + 2, dtype=np.float64) - 0.5  # half-step positions
     tau = np.arange(-along, along + 1, dtype=np.float64)
-    coords = (
-        points[:, None, None, :]
-        + m[None, :, None, None] * n[:, None, None, :]
-        + tau[None, None, :, None] * u[:, None, None, :]
-    )  # (S, 2 (k + pad) + 2, T, 2)
+    coords = _line_coords(points, n, u, m, tau)  # (S, 2 (k + pad) + 2, T, 2)
     h, w = grey.shape
     x, y = coords[:, pad : len(m) - pad, :, 0], coords[:, pad : len(m) - pad, :, 1]
     inside = ((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)).all(axis=(1, 2))
@@ -342,15 +338,24 @@ def moving_edges(
     rival = np.zeros(count, bool)
     if ramp is not None and np.any(valid):  # (a blurred frame: the lines looked along)
         K = max(k, k if reach is None else int(reach))
-        line, wide = d[valid], np.arange(-K - pad, K + pad + 2, dtype=np.float64) - 0.5
+        line = d[valid]
         if K > k:  # (read as far as `reach`)
-            line = np.diff(_read(grey, points[valid, None, None, :]
-                                 + wide[None, :, None, None] * n[valid, None, None, :]
-                                 + tau[None, None, :, None] * u[valid, None, None, :]),
-                           axis=1)[:, pad : 2 * (K + pad) + 1 - pad]  # fmt: skip
+            wide = np.arange(-K - pad, K + pad + 2, dtype=np.float64) - 0.5
+            far = _read(grey, _line_coords(points[valid], n[valid], u[valid], wide, tau))
+            line = np.diff(far, axis=1)[:, pad : 2 * (K + pad) + 1 - pad]
         explained = None if others is None else others[valid] + K
         rival[valid] = _rivals(line, offset[valid] + K, halves[valid], threshold, explained)
     return EdgeMatches(points, n, matched, offset, strength, valid, ramp is not None, rival)
+
+
+def _line_coords(points, n, u, m, tau) -> np.ndarray:
+    """`(S, M, T, 2)`: the points `m` along each sample's normal `n`, `tau` across it
+    (along `u`)."""
+    return (
+        points[:, None, None, :]
+        + m[None, :, None, None] * n[:, None, None, :]
+        + tau[None, None, :, None] * u[:, None, None, :]
+    )
 
 
 def _read(grey: np.ndarray, coords: np.ndarray) -> np.ndarray:
