@@ -80,7 +80,9 @@ def recognition_reinit(
     - `options`: `recognize`'s (`front_end`, and `detect`'s: `noise`, `min_support`...).
 
     **Returns:** `reinit(frame, index)`: `(R (3, 3), t (3,))`, model to camera, or None
-    when the object is not recognised in the frame.
+    when the object is not recognised in the frame; its `chooses_twin` is True where the
+    mesh has half-turn symmetries and the face colours or the textured model choose
+    among the twins (`track` then takes its pose as the twin, see there).
 
     **Raises:** `ValueError` naming the argument.
     """
@@ -140,7 +142,20 @@ def recognition_reinit(
                 return R_k, pose.tvec.reshape(3)
         return mesh_pose(frame, tries)
 
-    return reinit
+    return _Reinit(reinit, bool(twin_turns))
+
+
+class _Reinit:
+    """`recognition_reinit`'s answer: `reinit(frame, index)`, and `chooses_twin`, whether
+    its pose is the twin the frame's appearance shows (a symmetric mesh with face colours
+    or a textured model): `track` then fits that pose alone, not its twins too."""
+
+    def __init__(self, find: Callable[[np.ndarray, int], tuple | None], chooses_twin: bool):
+        self._find = find
+        self.chooses_twin = chooses_twin
+
+    def __call__(self, frame: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+        return self._find(frame, index)
 
 
 def _angle(A: np.ndarray, B: np.ndarray) -> float:

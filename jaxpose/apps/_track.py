@@ -46,7 +46,8 @@ and holds the last pose; the next frames are fitted afresh from what an injected
 `reinit` finds (at most one try every `reinit_every` frames and `reinit_wait` seconds;
 e.g. recognition, `recognition_reinit`), with the model's half-turn symmetries (which
 edges alone cannot tell apart; the contrasts remembered from the last frame held pick
-one), and from the last pose held, until one is supported (`"reinitialised"`).
+one) unless `reinit` chose among them by the object's appearance (`chooses_twin`), and
+from the last pose held, until one is supported (`"reinitialised"`).
 
 The measurements are numpy and OpenCV (one frame of 640 x 480 costs a few milliseconds,
 see `benchmarks/frontend.py`), the solve compiled. Each frame keeps its measurements with
@@ -397,7 +398,13 @@ def track(
       After a lost frame, each following frame is fitted from the pose it gives (on
       the frames `options.reinit_every` and `options.reinit_wait` allow), then from the
       last pose held, until one is supported (`"reinitialised"`); None: from the last
-      pose held only (the object must come back near where it was lost).
+      pose held only (the object must come back near where it was lost). The model's
+      symmetric twins of that pose are fitted too (they show the same edges), told
+      apart by the contrasts remembered from the last frame held, unless `reinit` has a
+      true `chooses_twin` attribute (`recognition_reinit` for a symmetric mesh with
+      face colours or a textured model, which tells them apart by their appearance: on
+      the photo-textured box back from a full occlusion, the remembered contrasts of
+      five frames before preferred the wrong twin).
     - `textured`: a `jaxpose.features.TexturedModel` with ORB descriptors, or None:
       on every tracked frame its points are matched to the frame's ORB keypoints near
       their predicted projections and taken as point measurements beside the KLT points
@@ -438,7 +445,9 @@ def track(
 
         keys = _Keypoints(cv2.ORB.create(nfeatures=500), np.asarray(textured.points, np.float64),
                           np.ascontiguousarray(textured.descriptors))  # fmt: skip
-    symmetries = _symmetries(geo) if reinit is not None else []
+    # (a reinit that tells the twins apart by their appearance: its pose, not its twins)
+    chooses_twin = bool(getattr(reinit, "chooses_twin", False))
+    symmetries = _symmetries(geo) if reinit is not None and not chooses_twin else []
     exact = [S for S, _ in symmetries]
     near = [(S, c) for S, c in (_symmetries(geo, NEAR_TWIN) if reinit is not None else [])
             if not any(np.allclose(S, E) for E in exact)]  # fmt: skip
@@ -504,9 +513,10 @@ def track(
                 status = "tracked"
             else:
                 # (Re-)initialisation: from the given pose on the first frame; later from
-                # the pose the injected `reinit` gives (and its symmetric variants: the
-                # same edges, told apart by the contrasts remembered from the last frame
-                # held; and its near twins, told apart by the edges themselves), then
+                # the pose the injected `reinit` gives (and, unless it chose the twin
+                # itself, its symmetric variants: the same edges, told apart by the
+                # contrasts remembered from the last frame held; and its near twins, told
+                # apart by the edges themselves), then
                 # from the last pose held; of the fits the frame supports, the one with
                 # the most edge matches of a remembered contrast (then the most edge
                 # matches).
