@@ -50,7 +50,7 @@ from tables_speed import (  # noqa: E402
     speed_phases,
     startup,
 )
-from tables_track import track_box, track_rendered  # noqa: E402
+from tables_track import track_box, track_drawings, track_rendered  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -198,6 +198,7 @@ TABLES: dict[str, Callable[[Path], str]] = {
     "opencv_cases": opencv_cases,
     "track_box": track_box,
     "track_rendered": track_rendered,
+    "track_drawings": track_drawings,
     "statuses": statuses,
     "paper_table1": paper_table1,
 }

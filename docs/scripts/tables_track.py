@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tables_format import caption, load, table
+from tables_format import Missing, caption, load, table
 
 #: The methods in their order, with their labels.
 LABELS = {
@@ -122,6 +122,47 @@ def track_rendered(results: Path) -> str:
         f"included. Targets: all three hold on every trajectory.{_recognised(d)}*"
     )
     return out + "\n\n" + caption(d, name, command="python -m benchmarks.track_rendered")
+
+
+#: The saved runs of the rendered matrix by drawing: the saved one (2x), then finer.
+DRAWINGS = ("track_rendered.json", "track_rendered_ss4.json", "track_rendered_ss8.json")
+
+
+def track_drawings(results: Path) -> str:
+    """One row per saved drawing of the rendered matrix (`--supersample`): the cells
+    met and the cells missed, each with its least share of the frames seen on target
+    (from the given pose / from recognition)."""
+    rows, names, data = [], [], None
+    for file in DRAWINGS:
+        try:
+            d, name = load(results, file)
+        except Missing:
+            continue
+        data = data or d
+        names.append(name)
+        missed: dict = {}
+        for c in d["cells"]:
+            if not c["targets_met"]:
+                missed.setdefault((c["object"], c["condition"]), {})[c["start"]] = c
+        listed = "; ".join(
+            f"{OBJECTS.get(o, o)}, {CONDITIONS.get(k, k)}: "
+            + _both(pair, "min_seen_on_target", lambda x: f"{100 * x:.0f}%")
+            for (o, k), pair in missed.items()
+        )  # fmt: skip
+        met = sum(c["targets_met"] for c in d["cells"])
+        rows.append((f"{d.get('supersample', 2)} x", f"{met} of {len(d['cells'])}",
+                     listed or "none"))  # fmt: skip
+    if data is None:
+        raise Missing(" or ".join(f"`benchmarks/results/{n}`" for n in DRAWINGS))
+    out = table(("drawn at", "cells met", "missed (seen on target: given / recognition)"),
+                rows, left=3)  # fmt: skip
+    out += (
+        "\n\n*The rendered matrix above with its frames drawn at 2 (saved), 4 and 8 "
+        "times their resolution and reduced by area (`--supersample`): the same "
+        "trajectories, noise and conditions; `-`: met from that start.*"
+    )
+    command = "python -m benchmarks.track_rendered --supersample N"
+    return out + "\n\n" + caption(data, *names, command=command)
 
 
 def _recognised(d: dict) -> str:

@@ -304,7 +304,8 @@ def _fit(grey, geo, K, dist, R, t, corners: _Corners, contrasts, size, options,
     return fit
 
 
-def _start_fits(grey, geo, K, dist, R, t, memory, size, options) -> Iterator[tuple]:
+def _start_fits(grey, geo, K, dist, R, t, memory, size,
+                options) -> Iterator[tuple[_Fit, _Contrasts]]:  # fmt: skip
     """The fits `(fit, contrasts expected)` of a (re)initialisation frame from a start
     `(R, t)`: from it, then (where every edge is measured) from where the outline alone
     settles. With no motion to predict from, the first round searches 12 px, where a
@@ -564,13 +565,14 @@ def track(
                     starts.append(pose)
                 best = (-1, -1)
                 for R_try, t_try in starts:
-                    for tried, table in _start_fits(grey, geo, K, dist, R_try, t_try, memory,
-                                                    size, options):  # fmt: skip
+                    for fit, table in _start_fits(grey, geo, K, dist, R_try, t_try, memory,
+                                                  size, options):  # fmt: skip
+                        tried = fit
                         # Told apart by the matches that kept a remembered contrast.
-                        score = (np.count_nonzero(_expected(table, tried.table.keys)),
-                                 tried.result.edges)  # fmt: skip
-                        if _supported(tried, usual, options) and (good is None or score > best):
-                            good, best = tried, score
+                        score = (np.count_nonzero(_expected(table, fit.table.keys)),
+                                 fit.result.edges)  # fmt: skip
+                        if _supported(fit, usual, options) and (good is None or score > best):
+                            good, best = fit, score
                 status = "reinitialised" if usual else "initialised"
             if good is None:
                 # Lost: the pose held is the last supported one; what was carried is dropped.
