@@ -46,8 +46,9 @@ and holds the last pose; the next frames are fitted afresh from what an injected
 `reinit` finds (at most one try every `reinit_every` frames and `reinit_wait` seconds;
 e.g. recognition, `recognition_reinit`), with the model's half-turn symmetries (which
 edges alone cannot tell apart; the contrasts remembered from the last frame held pick
-one) unless `reinit` chose among them by the object's appearance (`chooses_twin`), and
-from the last pose held, until one is supported (`"reinitialised"`).
+one) unless `reinit` chose among them by the object's appearance (`chooses_twin`), and,
+where the frame supports none of those, from the last pose held, until one is supported
+(`"reinitialised"`).
 
 The measurements are numpy and OpenCV (one frame of 640 x 480 costs a few milliseconds,
 see `benchmarks/frontend.py`), the solve compiled. Each frame keeps its measurements with
@@ -420,8 +421,9 @@ def track(
     - `reinit`: `reinit(frame, index) -> (R or rvec, t) or None`, a pose of the object
       in a frame found afresh (e.g. `recognition_reinit`: recognition from the mesh).
       After a lost frame, each following frame is fitted from the pose it gives (on
-      the frames `options.reinit_every` and `options.reinit_wait` allow), then from the
-      last pose held, until one is supported (`"reinitialised"`); None: from the last
+      the frames `options.reinit_every` and `options.reinit_wait` allow), and where the
+      frame supports no fit from it, from the last pose held, until one is supported
+      (`"reinitialised"`); None: from the last
       pose held only (the object must come back near where it was lost). The model's
       symmetric twins of that pose are fitted too (they show the same edges), told
       apart by the contrasts remembered from the last frame held, unless `reinit` has a
