@@ -71,6 +71,7 @@ from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
 from ._symmetry import NEAR_TWIN, turned
 from ._symmetry import symmetries as _symmetries
+from ._track_contrasts import _NO_CONTRAST, _Contrasts, _expected, _remembered, _sides, _unchanged
 from ._track_keypoints import _NO_CORNERS, _Corners, _keypoint_matches, _Keypoints
 from ._track_options import TrackOptions
 from ._track_solve import Measurements, Solved, TrackRows, _orthonormal, moved_pixels, solve_frame
@@ -80,7 +81,6 @@ from ._visibility import (
     cast_rays,
     edge_samples,
     face_mask,
-    facing,
     mesh_geometry,
     project,
 )
@@ -142,30 +142,6 @@ def _solve(R, t, K, meas: Measurements, options: TrackOptions) -> Solved:
                        min_rows=options.min_rows, min_scale=options.min_scale)  # fmt: skip
 
 
-class _Contrasts(NamedTuple):
-    """The signed contrast each edge match had, keyed by `edge + fraction along it`
-    (sorted), for the next frame's samples at the same places on the model."""
-
-    keys: np.ndarray
-    values: np.ndarray
-
-
-_NO_CONTRAST = _Contrasts(np.zeros(0), np.zeros(0))
-
-
-def _expected(table: _Contrasts, keys: np.ndarray, reach: float = 0.05) -> np.ndarray:
-    """The contrast of the nearest entry on the same edge within `reach` (a fraction of
-    the edge's length) of each key, 0 where none."""
-    if len(table.keys) == 0 or len(keys) == 0:
-        return np.zeros(len(keys))
-    i = np.searchsorted(table.keys, keys).clip(1, len(table.keys) - 1)
-    lo, hi = table.keys[i - 1], table.keys[i]
-    j = np.where(np.abs(keys - lo) <= np.abs(hi - keys), i - 1, i)
-    near = table.keys[j]
-    same = (np.floor(near) == np.floor(keys)) & (np.abs(near - keys) <= reach)
-    return np.where(same, table.values[j], 0.0)
-
-
 def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, options, last=None):
     samples = edge_samples(geo, K, dist, R, t, spacing=options.spacing, image_size=size,
                            margin=search + 2.0, grazing=options.grazing)  # fmt: skip
@@ -219,32 +195,6 @@ def _crossings(geo: MeshGeometry, K, dist, R, t, samples) -> np.ndarray:
     along = (n[:, None, 0] * rhs[..., 1] - n[:, None, 1] * rhs[..., 0]) / det
     crossed = solvable & (along >= 0) & (along <= 1) & (seen[None, :] != samples.edge[:, None])
     return np.where(crossed, s, np.nan)
-
-
-def _sides(geo: MeshGeometry, R, t, grazing: float) -> np.ndarray:
-    """`(E, 2)` bool: whether each edge's two faces are seen at pose `(R, t)` (False
-    where an edge has no second face)."""
-    seen = facing(geo, R, t, grazing)
-    return np.where(geo.edge_faces >= 0, seen[np.maximum(geo.edge_faces, 0)], False)
-
-
-def _remembered(memory, geo: MeshGeometry, R, t, grazing: float) -> _Contrasts:
-    """The contrasts of the last frame held (`memory`: its table and its faces seen) that
-    a fit from `(R, t)` may expect (`_unchanged`); none without a frame held."""
-    if memory is None:
-        return _NO_CONTRAST
-    return _unchanged(memory[0], memory[1], _sides(geo, R, t, grazing))
-
-
-def _unchanged(table: _Contrasts, old_sides, sides: np.ndarray) -> _Contrasts:
-    """The entries of `table` (contrasts measured where the faces were seen as
-    `old_sides`) on edges whose faces are seen as they were: an edge whose faces changed
-    between seen and not changes its contrast."""
-    if old_sides is None or len(table.keys) == 0:
-        return table
-    changed = np.any(sides != old_sides, axis=1)
-    same = ~changed[np.floor(table.keys).astype(int)]
-    return _Contrasts(table.keys[same], table.values[same])
 
 
 class _Fit(NamedTuple):
