@@ -423,8 +423,9 @@ def track(
                           np.ascontiguousarray(textured.descriptors))  # fmt: skip
     # (a reinit that tells the twins apart by their appearance: its pose, not its twins)
     chooses_twin = bool(getattr(reinit, "chooses_twin", False))
-    symmetries = _symmetries(geo) if reinit is not None and not chooses_twin else []
-    exact = [S for S, _ in symmetries]
+    twins = _symmetries(geo) if reinit is not None else []
+    symmetries = [] if chooses_twin else twins
+    exact = [S for S, _ in twins]  # (never among the near twins, chosen or not)
     near = [(S, c) for S, c in (_symmetries(geo, NEAR_TWIN) if reinit is not None else [])
             if not any(np.allclose(S, E) for E in exact)]  # fmt: skip
 
