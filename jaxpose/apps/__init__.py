@@ -69,6 +69,7 @@ from ._track import TrackedFrame as TrackedFrame
 from ._track import track as track
 from ._track_options import TrackOptions as TrackOptions
 from ._track_refine import RefinedTrack as RefinedTrack
+from ._track_refine import motion_sigmas as motion_sigmas
 from ._track_refine import refine_track as refine_track
 from ._track_solve import frame_covariance as frame_covariance
 from ._track_target import Anchor as Anchor

@@ -16,7 +16,19 @@ scale squared), so that without the prior each frame's minimum is the tracker's 
 second is a constant-velocity prior on the centre and on the orientation, over every
 three consecutive frames with a pose (a lost frame breaks the chain). `sigma_t` is
 `translation_sigma` times the median distance of the object, `sigma_r`
-`rotation_sigma` (degrees): the acceleration per frame^2 the motion is expected to have.
+`rotation_sigma` (degrees): the acceleration per frame^2 the motion is expected to have,
+per axis.
+
+**The prior's sigmas from the track** (`motion_sigmas`, the default). Each sigma is
+the spread of the tracked trajectory's own second differences: over the same triples of
+frames, `sqrt(median |d|^2 / 2.366)` for `d` the second difference of the rotation
+(`a_i - a_{i-1}`) and of the centre (over the median distance), 2.366 being the median
+of a chi-square with 3 degrees of freedom (a Gaussian `d` of that spread per axis). The
+tracker's noise is in those differences too, so the prior is never stiffer than the
+motion: a fixed sigma fits one motion only. On `box.mp4` (moved by hand) the estimate is
+about 0.06 degree per frame^2; on the rendered benchmark's turns of up to 20 degrees in
+24 frames (whose true second differences reach 0.6-1.5 degrees) 0.3-0.9, where a fixed
+0.05 pulled the trajectory off the turns (`docs/tracking.md`).
 
 **The solve.** Gauss-Newton with Marquardt's damping (a step that does not lower the cost
 is refused and the damping raised) on all frames' 6-vectors at once: each frame's
@@ -53,7 +65,12 @@ from ..geometry._validate import no_type_check
 from ._track import TrackedFrame
 from ._track_solve import _float, _orthonormal, plane_rows
 
-__all__ = ["RefinedTrack", "refine_track"]
+__all__ = ["RefinedTrack", "motion_sigmas", "refine_track"]
+
+
+#: `motion_sigmas` without three consecutive frames with a pose (degrees per frame^2; a
+#: fraction of the distance per frame^2).
+_FALLBACK_ROTATION, _FALLBACK_TRANSLATION = 0.05, 2e-4
 
 
 class RefinedTrack(NamedTuple):
@@ -65,12 +82,67 @@ class RefinedTrack(NamedTuple):
     - `cost_before`, `cost_after`: the joint cost (module docstring) at the tracked and at
       the refined poses.
     - `iterations`: the Gauss-Newton steps taken (refused ones included).
+    - `rotation_sigma`, `translation_sigma`: the prior's sigmas used (given, or
+      `motion_sigmas` of the frames).
     """
 
     frames: list[TrackedFrame]
     cost_before: float
     cost_after: float
     iterations: int
+    rotation_sigma: float = _FALLBACK_ROTATION
+    translation_sigma: float = _FALLBACK_TRANSLATION
+
+
+#: The median of a chi-square with 3 degrees of freedom: `|d|^2 / sigma^2` of a 3-vector
+#: `d` with independent Gaussian components of standard deviation `sigma`.
+_CHI2_3_MEDIAN = 2.365974
+
+#: The sigmas `motion_sigmas` falls back on, and its least ones.
+_FALLBACK = (_FALLBACK_ROTATION, _FALLBACK_TRANSLATION)
+_LEAST = (1e-3, 1e-6)
+
+
+def _links(frames: Sequence[TrackedFrame]) -> list[int]:
+    """The positions `i` whose frames `i - 1`, `i`, `i + 1` all have a pose and
+    consecutive numbers (the triples the prior links)."""
+    posed = [f.ok and f.rows is not None and len(f.rows.point) > 0 for f in frames]
+    return [
+        i for i in range(1, len(frames) - 1)
+        if posed[i - 1] and posed[i] and posed[i + 1]
+        and frames[i].frame - frames[i - 1].frame == 1
+        and frames[i + 1].frame - frames[i].frame == 1
+    ]  # fmt: skip
+
+
+def motion_sigmas(frames: Sequence[TrackedFrame], centre) -> tuple[float, float]:
+    """The motion prior's sigmas `(rotation_sigma, translation_sigma)` that
+    `refine_track` takes by default: the spread per axis of the tracked trajectory's
+    second differences (module docstring), over the triples of consecutive frames with
+    a pose; `(0.05, 2e-4)` without any, never below `(1e-3, 1e-6)`.
+
+    **Arguments:** `frames` as `refine_track` takes them; `centre` `(3,)` the model
+    point whose path is smoothed.
+    """
+    import cv2
+
+    links = _links(frames)
+    if not links:
+        return _FALLBACK
+    centre = np.asarray(centre, np.float64)
+    rot, move, distance = [], [], []
+    for i in links:
+        a, b, c = frames[i - 1], frames[i], frames[i + 1]
+        w0 = cv2.Rodrigues(b.R @ a.R.T)[0].ravel()
+        w1 = cv2.Rodrigues(c.R @ b.R.T)[0].ravel()
+        rot.append(float(np.sum((w1 - w0) ** 2)))
+        p = [f.R @ centre + f.t for f in (a, b, c)]
+        move.append(float(np.sum((p[2] - 2 * p[1] + p[0]) ** 2)))
+        distance.append(float(np.linalg.norm(p[1])))
+    rotation = math.degrees(math.sqrt(float(np.median(rot)) / _CHI2_3_MEDIAN))
+    scale = max(float(np.median(distance)), 1e-12)
+    translation = math.sqrt(float(np.median(move)) / _CHI2_3_MEDIAN) / scale
+    return max(rotation, _LEAST[0]), max(translation, _LEAST[1])
 
 
 def _data(R, t, model, planes, mask, omega, centre):
@@ -226,8 +298,8 @@ def _check_positive(name: str, value) -> float:
 def refine_track(
     frames: Sequence[TrackedFrame],
     *,
-    rotation_sigma: float = 0.05,
-    translation_sigma: float = 2e-4,
+    rotation_sigma: float | None = None,
+    translation_sigma: float | None = None,
     iterations: int = 8,
     centre=None,
 ) -> RefinedTrack:
@@ -237,9 +309,11 @@ def refine_track(
     - `frames`: the tracker's results in order (`jaxpose.apps.track`), each frame with a
       pose keeping its measurements (`TrackedFrame.rows`).
     - `rotation_sigma`: the expected change of the rotation per frame between
-      consecutive frames (degrees per frame^2): smaller smooths more.
+      consecutive frames (degrees per frame^2, per axis): smaller smooths more. None:
+      from the track itself (`motion_sigmas`: the spread of its own second
+      differences).
     - `translation_sigma`: the same for the object's centre, as a fraction of its
-      distance to the camera (per frame^2).
+      distance to the camera (per frame^2); None: from the track.
     - `iterations`: Gauss-Newton steps.
     - `centre`: the model point whose path the prior smooths (default: the centroid of
       the measured model points).
@@ -252,8 +326,10 @@ def refine_track(
     frames = list(frames) if not isinstance(frames, list) else frames
     if not all(isinstance(f, TrackedFrame) for f in frames):
         raise ValueError("frames must be a sequence of TrackedFrame (from track)")
-    rotation_sigma = _check_positive("rotation_sigma", rotation_sigma)
-    translation_sigma = _check_positive("translation_sigma", translation_sigma)
+    if rotation_sigma is not None:
+        rotation_sigma = _check_positive("rotation_sigma", rotation_sigma)
+    if translation_sigma is not None:
+        translation_sigma = _check_positive("translation_sigma", translation_sigma)
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be an int >= 1, got {iterations!r}")
     used = [f.ok and f.rows is not None and len(f.rows.point) > 0 for f in frames]
@@ -268,8 +344,13 @@ def refine_track(
         stacked = np.vstack([f.rows.model for f, u in zip(frames, used) if u])  # type: ignore[union-attr]
         centre = stacked.mean(axis=0)
     if sum(used) < 3:  # no three frames: nothing to smooth
-        return RefinedTrack(list(frames), 0.0, 0.0, 0)
+        return RefinedTrack(list(frames), 0.0, 0.0, 0, rotation_sigma or _FALLBACK[0],
+                            translation_sigma or _FALLBACK[1])  # fmt: skip
     assert centre is not None
+    if rotation_sigma is None or translation_sigma is None:
+        found = motion_sigmas(frames, centre)
+        rotation_sigma = found[0] if rotation_sigma is None else rotation_sigma
+        translation_sigma = found[1] if translation_sigma is None else translation_sigma
     F = bucket_points(max(len(frames), 2))
     U = bucket_points(max(len(f.rows.point) for f, u in zip(frames, used) if u))  # type: ignore[union-attr]
     f = _float()
@@ -316,4 +397,5 @@ def refine_track(
         w = rows.weights[:, None] * rows.mask
         rms = float(np.sqrt((w * r[i, :n] ** 2).sum() / max(w.sum(), 1e-300)))
         refined.append(frame._replace(R=_orthonormal(R1[i]), t=t1[i].copy(), rms=rms))
-    return RefinedTrack(refined, float(before), float(after), iterations)
+    return RefinedTrack(refined, float(before), float(after), iterations, rotation_sigma,
+                        translation_sigma)  # fmt: skip

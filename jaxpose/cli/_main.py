@@ -227,13 +227,15 @@ def build_parser() -> argparse.ArgumentParser:
                     "prior: jaxpose.apps.refine_track) and write the refined poses to --json "
                     "and --csv; prints the jitter before and after (--overlay and --rrd show "
                     "the tracked poses)")  # fmt: skip
-    tr.add_argument("--smooth-rotation", type=float, default=0.05, metavar="DEG",
+    tr.add_argument("--smooth-rotation", type=float, default=None, metavar="DEG",
                     help="--smooth's prior: the change of the frame-to-frame rotation "
-                    "expected per frame, degrees (default 0.05; larger smooths less)")  # fmt: skip
-    tr.add_argument("--smooth-translation", type=float, default=2e-4, metavar="F",
+                    "expected per frame, degrees (default: the spread of the track's own "
+                    "second differences, jaxpose.apps.motion_sigmas; larger smooths "
+                    "less)")  # fmt: skip
+    tr.add_argument("--smooth-translation", type=float, default=None, metavar="F",
                     help="--smooth's prior: the change of the frame-to-frame movement of the "
                     "object's centre expected per frame, as a fraction of its distance "
-                    "(default 0.0002)")  # fmt: skip
+                    "(default: from the track, as --smooth-rotation's)")  # fmt: skip
     add_recording_options(tr)
     tr.set_defaults(func=cmd_track)
     w = sub.add_parser(

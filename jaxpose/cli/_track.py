@@ -115,7 +115,7 @@ def _check_args(args) -> None:
         raise CliError(f"--reinit-wait must be a finite number >= 0, got {args.reinit_wait}")
     for option, value in (("--smooth-rotation", args.smooth_rotation),
                           ("--smooth-translation", args.smooth_translation)):  # fmt: skip
-        if not 0 < value < math.inf:
+        if value is not None and not 0 < value < math.inf:
             raise CliError(f"{option} must be a finite number > 0, got {value}")
     if args.point is not None and not all(math.isfinite(x) for x in args.point):
         raise CliError(f"--point must be two finite numbers, got {args.point}")
@@ -289,9 +289,10 @@ def jitter(poses, centre) -> dict[str, float]:
             "rotation_2nd_deg": median(rot2), "translation_2nd": median(move2)}  # fmt: skip
 
 
-def _smooth(results, centre, rotation_sigma: float, translation_sigma: float):
-    """`refine_track` on the pass's results with the prior's sigmas: the refined frames,
-    a line saying the jitter before and after, and the seconds it took."""
+def _smooth(results, centre, rotation_sigma: float | None, translation_sigma: float | None):
+    """`refine_track` on the pass's results with the prior's sigmas (None: from the
+    track): the refined frames, a line saying the sigmas and the jitter before and after,
+    and the seconds it took."""
     from ..apps._track_refine import refine_track
 
     began = time.perf_counter()
@@ -308,7 +309,9 @@ def _smooth(results, centre, rotation_sigma: float, translation_sigma: float):
 
     a, b = jitter(poses(results), centre), jitter(poses(refined.frames), centre)
     line = (
-        f"smoothed (refine_track, {refined.iterations} steps, {seconds:.1f} s): jitter "
+        f"smoothed (refine_track, {refined.iterations} steps, {seconds:.1f} s; prior "
+        f"{refined.rotation_sigma:.3g} deg, {refined.translation_sigma:.3g} of the distance "
+        f"per frame^2): jitter "
         f"{a['rotation_deg']:.3f} -> {b['rotation_deg']:.3f} deg, {a['translation']:.3f} -> "
         f"{b['translation']:.3f} (model units) frame to frame; second difference "
         f"{a['rotation_2nd_deg']:.3f} -> {b['rotation_2nd_deg']:.3f} deg, "

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_track import GEO, K, _errors, _sequence
 
-from jaxpose.apps import RefinedTrack, TrackOptions, refine_track, track
+from jaxpose.apps import RefinedTrack, TrackOptions, motion_sigmas, refine_track, track
 
 SHADES = np.array([200.0, 90.0, 150.0, 240.0, 120.0, 60.0])
 
@@ -98,3 +98,59 @@ def test_a_frame_without_weight_gives_no_nan(tracked):
     bad[3] = bad[3]._replace(t=np.array([0.0, np.nan, 80.0]))
     with pytest.raises(ValueError, match="frames"):
         refine_track(bad)
+
+
+def _frames_on(Rs, ts, rows):
+    """`TrackedFrame`s with the poses `(Rs, ts)`, each keeping `rows`."""
+    from jaxpose.apps import TrackedFrame
+
+    return [TrackedFrame(i, R, t, True, 1, 0, 0.0, "tracked", 0.0, rows)
+            for i, (R, t) in enumerate(zip(Rs, ts, strict=True))]  # fmt: skip
+
+
+def test_motion_sigmas_find_the_spread_of_the_motion(tracked):
+    # A turn whose velocity takes Gaussian steps of 0.4 degree per axis: found. A centre
+    # that only jitters about a fixed place (Gaussian, 0.001 of the distance per axis):
+    # its second differences spread sqrt(6) times as much, as the estimate says (the
+    # tracker's noise counts as motion: the prior is never stiffer than the track).
+    results = tracked[0]
+    rng = np.random.default_rng(7)
+    rows = results[0].rows
+    w, R = np.zeros(3), np.eye(3)
+    Rs, ts = [], []
+    for _ in range(400):
+        w = w + np.radians(0.4) * rng.standard_normal(3)
+        R = cv2.Rodrigues(w)[0] @ R
+        Rs.append(R)
+        ts.append(np.array([0.0, 0.0, 100.0]) + 0.1 * rng.standard_normal(3))
+    centre = np.zeros(3)
+    rot, move = motion_sigmas(_frames_on(Rs, ts, rows), centre)
+    assert 0.32 < rot < 0.48
+    assert 0.8 * np.sqrt(6) * 1e-3 < move < 1.2 * np.sqrt(6) * 1e-3
+    # Fewer than three frames with a pose: the fallback; a lost frame breaks the triples.
+    assert motion_sigmas(_frames_on(Rs[:2], ts[:2], rows), centre) == (0.05, 2e-4)
+    frames = _frames_on(Rs[:3], ts[:3], rows)
+    frames[1] = frames[1]._replace(ok=False)
+    assert motion_sigmas(frames, centre) == (0.05, 2e-4)
+
+
+def test_the_default_prior_follows_a_fast_turn():
+    # 20 degrees over 20 frames (second differences up to about 2 degrees): the prior
+    # taken from the track keeps the tracker's accuracy, a fixed 0.05 degree pulls the
+    # trajectory off the turns.
+    frames, Rs, ts = _sequence(20, seed=1, noise=2.0, shades=SHADES)
+    results = list(
+        track(frames, GEO, K, None, (Rs[0], ts[0]), options=TrackOptions(use_points=False))
+    )
+    assert all(r.ok for r in results)
+    auto = refine_track(results)
+    assert auto.rotation_sigma > 0.2
+    stiff = refine_track(results, rotation_sigma=0.05, translation_sigma=2e-4)
+    rot0, _ = _errors(results, Rs, ts)
+    rot1, _ = _errors(auto.frames, Rs, ts)
+    rot2, _ = _errors(stiff.frames, Rs, ts)
+    assert rot1.mean() <= rot0.mean() * 1.1 and rot1.max() <= rot0.max() * 1.1
+    assert rot2.max() > 1.5 * rot1.max()
+    print(f"mean/max rotation error: tracked {rot0.mean():.3f}/{rot0.max():.3f}, refined "
+          f"from the track ({auto.rotation_sigma:.2f} deg) {rot1.mean():.3f}/{rot1.max():.3f}, "
+          f"0.05 deg {rot2.mean():.3f}/{rot2.max():.3f}")  # fmt: skip
