@@ -11,7 +11,8 @@ Methods, each run on every frame:
   frame, as `jaxpose track --textured` runs it;
 - `jaxpose_refined`: the same trajectory refined offline, all frames jointly
   (`jaxpose.apps.refine_track`: each frame's stored measurements plus a
-  constant-velocity prior, default settings); its rate counts the tracking and the
+  constant-velocity prior, default settings: its sigmas from the track,
+  `refine_sigmas`); its rate counts the tracking and the
   refinement;
 - `jaxpose_keypoints`: `jaxpose.apps.track` with `textured=` the same textured model:
   on every tracked frame its points are matched to the frame's ORB keypoints (500, in
@@ -199,6 +200,7 @@ def run_jaxpose(frames, geo, textured, K, dist, keypoints: bool = False
     refined = refine_track(results)
     refine_s = time.perf_counter() - began
     info["refine_cost"] = [refined.cost_before, refined.cost_after]
+    info["refine_sigmas"] = [refined.rotation_sigma, refined.translation_sigma]
     smooth = [(r.R, r.t) if r.ok else None for r in refined.frames]
     return poses, elapsed, info, smooth, refine_s
 
@@ -316,6 +318,8 @@ def run(frames: int = 455, repeats: int = 3) -> dict:
     methods["jaxpose_refined"]["refine_seconds_each_run"] = [r[4] for r in jp_runs]
     methods["jaxpose_keypoints"]["seconds_each_run"] = [r[1] for r in kp_runs]
     methods["jaxpose_refined"]["refine_cost"] = info["refine_cost"]
+    # (the prior's sigmas, from the track: degrees and a fraction of the distance per frame^2)
+    methods["jaxpose_refined"]["refine_sigmas"] = info["refine_sigmas"]
     for key in ("opencv_pnp", "opencv_kalman"):
         methods[key]["seconds_each_run"] = [r[2] for r in cv_runs]
     return {

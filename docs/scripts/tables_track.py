@@ -94,13 +94,16 @@ def track_rendered(results: Path) -> str:
             CONDITIONS.get(condition, condition),
             _both(pair, "min_seen_on_target", percent),
             _both(pair, "min_seen_on_target_up_to_symmetry", percent),
+            _both(pair, "min_refined_seen_on_target",
+                  lambda x: "-" if x is None or x != x else percent(x)),
             _both(pair, "wrong_tracked", str),
             _both(pair, "hidden_tracked", str),
             _both(pair, "max_back_after", lambda x: "-" if x is None else str(x)),
             _both(pair, "median_ms_per_frame", lambda x: f"{x:.0f}"),
             _both(pair, "targets_met", lambda x: "met" if x else "missed"),
         ))  # fmt: skip
-    header = ("object", "condition", "seen on target", "up to symmetry", "wrong tracked",
+    header = ("object", "condition", "seen on target", "up to symmetry", "refined offline",
+              "wrong tracked",
               "hidden tracked", "back after", "ms/frame", "targets")  # fmt: skip
     t = d["targets"]
     runs = len(d["runs"])
@@ -114,7 +117,9 @@ def track_rendered(results: Path) -> str:
         f"{100 * t['translation']:g}% of the distance (target >= "
         f"{100 * t['seen_on_target']:.0f}%); up to symmetry: the same with the rotation "
         f"error taken up to the model's half-turn symmetries (the box's three; the prism "
-        f"has none). Wrong tracked: frames reported with a pose off the target (all "
+        f"has none); refined offline: the seen on target of the run refined afterwards, "
+        f"all frames jointly (`refine_track`, default settings; the targets are the "
+        f"tracker's own, online). Wrong tracked: frames reported with a pose off the target (all "
         f"trajectories); hidden tracked: frames reported with a pose while the object is "
         f"hidden (target 0); back after: the most frames from the reappearance to the "
         f"first frame with a pose (target <= {t['back_after']}, back within "
