@@ -269,9 +269,9 @@ def test_interrupted_run_writes_what_it_tracked(sequence, capsys, monkeypatch):
 def test_smooth_writes_the_refined_trajectory(sequence, capsys):
     # --smooth on the first six frames (no occlusion): the poses written are refine_track's
     # and the jitter before and after is printed. The rendered box turns about 3 degrees
-    # a frame with a second difference of about 2.7 deg/frame^2, far from the default
-    # prior's constant velocity (0.05): with a prior that allows it, the refined poses
-    # stay on the true ones.
+    # a frame with a second difference of about 2.7 deg/frame^2, far from a constant
+    # velocity: with a prior that allows it (given, or by default from the track), the
+    # refined poses stay on the true ones.
     argv = ["track", str(sequence["folder"]), "--model", str(MESH), "--camera",
             str(sequence["camera"]), "--init-pose", str(sequence["pose"]), "--no-reinit",
             "--frames", "6"]  # fmt: skip
@@ -296,6 +296,13 @@ def test_smooth_writes_the_refined_trajectory(sequence, capsys):
     with table.open() as fh:
         rows = list(csv.DictReader(fh))
     assert [float(r["tvec_z"]) for r in rows] == pytest.approx([f["tvec"][2] for f in after])
+    # The default: the prior's sigmas from the track, printed.
+    assert main([*argv, "--smooth", "--json", str(smooth)]) == 0
+    stdout = capsys.readouterr().out.replace("\n", " ")
+    assert "prior " in stdout and "deg," in stdout
+    for i, f in enumerate(json.loads(smooth.read_text())["frames"]):
+        rotation, translation = _errors(f, sequence["Rs"][i], sequence["ts"][i])
+        assert rotation <= 0.5 and translation <= 0.005, (i, rotation, translation)
     # A prior that must be positive: one line naming it.
     for option in ("--smooth-rotation", "--smooth-translation"):
         assert main([*argv, "--smooth", option, "0"]) == 2
