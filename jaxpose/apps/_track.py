@@ -34,7 +34,9 @@ for it.
 
 The edges are measured again from the refined pose (up to `rounds` times, the search
 range shrinking to `refine_search`, until a round hardly moves the pose); a fit from the
-predicted pose that the frame does not support is made again from the last pose held.
+predicted pose that the frame does not support is made again from the last pose held, as
+is, on the first frame after a (re)initialisation (no motion yet: the KLT points alone
+predict), every fit from a prediction, the better supported kept.
 Distortion is removed from the measurements first (`cv2.undistortPoints`).
 
 Each frame's status is honest: a frame whose measurements do not support the pose
@@ -482,6 +484,12 @@ def track(
 
                 tried = fit_from(R_pred, t_pred)
                 good = tried if _supported(tried, usual, options) else None
+                if good is not None and motion is None and R_pred is not pose[0]:
+                    # (the KLT points alone predicted: a few on noise can send the fit off
+                    # and the frame support it; the pose held's fit, if better supported)
+                    again = fit_from(*pose)
+                    if _supported(again, usual, options) and again.support > good.support:
+                        tried = good = again
                 if good is None and R_pred is not pose[0]:
                     # the motion changed (the prism turning edge-on: 5-10 degrees off)
                     again = fit_from(*pose)
