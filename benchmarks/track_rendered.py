@@ -311,7 +311,7 @@ def _cell(runs: list[dict]) -> dict:
         "seeds": len(runs),
         "min_seen_on_target": seen,
         "min_seen_on_target_up_to_symmetry": up_to,
-        "min_refined_seen_on_target": min(r.get("refined_seen_on_target", np.nan) for r in runs),
+        "min_refined_seen_on_target": min(r["refined_seen_on_target"] for r in runs),
         "hidden_tracked": hidden,
         "max_back_after": back,
         "wrong_tracked": sum(r["wrong_tracked"] for r in runs),

@@ -370,15 +370,8 @@ def refine_track(
         R[i], t[i], active[i] = frame.R, frame.t, True
         model[i, :n], planes[i, :n], mask[i, :n] = rows.model, rows.planes, rows.mask
         omega[i, :n] = rows.weights / np.maximum(rows.scales, 1e-12) ** 2
-    index = np.array([fr.frame for fr in frames] + [-10] * (F - len(frames)))
     link = np.zeros(F, bool)
-    link[1:-1] = (
-        active[1:-1]
-        & active[:-2]
-        & active[2:]
-        & (index[1:-1] - index[:-2] == 1)
-        & (index[2:] - index[1:-1] == 1)
-    )
+    link[_links(frames)] = True
     distance = np.median(np.linalg.norm(R[active] @ centre + t[active], axis=1))
     inv_sigma = np.array(
         [1 / (translation_sigma * max(distance, 1e-12)), 1 / math.radians(rotation_sigma)], f
