@@ -243,8 +243,10 @@ def test_the_figures_of_a_run():
     assert figures["seen_on_target_up_to_symmetry"] == 1.0
     assert figures["wrong_tracked"] == 1 and figures["first_pose"] == 0
     cell = bench._cell([dict(figures, object="box_flat", condition="noise", start="given",
-                             recognition="mesh", ms_per_frame=1.0)])  # fmt: skip
+                             recognition="mesh", ms_per_frame=1.0,
+                             refined_seen_on_target=0.9)])  # fmt: skip
     assert not cell["targets_met"] and cell["min_seen_on_target"] == pytest.approx(0.8)
+    assert cell["min_refined_seen_on_target"] == pytest.approx(0.9)  # (not in the targets)
     assert cell["recognition"] == "mesh"
     with pytest.raises(ValueError, match="condition"):
         bench.sequence(obj, "fog", 2, 1)
