@@ -484,16 +484,16 @@ def track(
 
                 tried = fit_from(R_pred, t_pred)
                 good = tried if _supported(tried, usual, options) else None
-                if good is not None and motion is None and R_pred is not pose[0]:
-                    # (the KLT points alone predicted: a few on noise can send the fit off
-                    # and the frame support it; the pose held's fit, if better supported)
+                if R_pred is not pose[0] and (good is None or motion is None):
+                    # From the pose held too, where the frame does not support the fit
+                    # from the prediction (the motion changed: the prism turning edge-on,
+                    # 5-10 degrees off), or where the KLT points alone predicted (no
+                    # motion yet: a few on noise can send the fit off and the frame
+                    # support it); the better supported fit kept.
                     again = fit_from(*pose)
-                    if _supported(again, usual, options) and again.support > good.support:
-                        tried = good = again
-                if good is None and R_pred is not pose[0]:
-                    # the motion changed (the prism turning edge-on: 5-10 degrees off)
-                    again = fit_from(*pose)
-                    if _supported(again, usual, options):
+                    if _supported(again, usual, options) and (
+                        good is None or again.support > good.support
+                    ):
                         tried = good = again
                 status = "tracked"
             else:

@@ -103,10 +103,14 @@ _FALLBACK = (_FALLBACK_ROTATION, _FALLBACK_TRANSLATION)
 _LEAST = (1e-3, 1e-6)
 
 
-def _links(frames: Sequence[TrackedFrame]) -> list[int]:
-    """The positions `i` whose frames `i - 1`, `i`, `i + 1` all have a pose and
-    consecutive numbers (the triples the prior links)."""
-    posed = [f.ok and f.rows is not None and len(f.rows.point) > 0 for f in frames]
+def _used(frames: Sequence[TrackedFrame]) -> list[bool]:
+    """Which frames take part: a pose (`ok`) with measurements kept (`rows`)."""
+    return [f.ok and f.rows is not None and len(f.rows.point) > 0 for f in frames]
+
+
+def _links(frames: Sequence[TrackedFrame], posed: list[bool]) -> list[int]:
+    """The positions `i` whose frames `i - 1`, `i`, `i + 1` all take part (`posed`) and
+    have consecutive numbers (the triples the prior links)."""
     return [
         i for i in range(1, len(frames) - 1)
         if posed[i - 1] and posed[i] and posed[i + 1]
@@ -124,12 +128,16 @@ def motion_sigmas(frames: Sequence[TrackedFrame], centre) -> tuple[float, float]
     **Arguments:** `frames` as `refine_track` takes them; `centre` `(3,)` the model
     point whose path is smoothed.
     """
+    return _sigmas(frames, _links(frames, _used(frames)), np.asarray(centre, np.float64))
+
+
+def _sigmas(frames: Sequence[TrackedFrame], links: list[int],
+            centre: np.ndarray) -> tuple[float, float]:  # fmt: skip
+    """`motion_sigmas` over the triples `links` (`_links`)."""
     import cv2
 
-    links = _links(frames)
     if not links:
         return _FALLBACK
-    centre = np.asarray(centre, np.float64)
     rot, move, distance = [], [], []
     for i in links:
         a, b, c = frames[i - 1], frames[i], frames[i + 1]
@@ -332,7 +340,7 @@ def refine_track(
         translation_sigma = _check_positive("translation_sigma", translation_sigma)
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be an int >= 1, got {iterations!r}")
-    used = [f.ok and f.rows is not None and len(f.rows.point) > 0 for f in frames]
+    used = _used(frames)
     for f, u in zip(frames, used):
         if u and not all(np.all(np.isfinite(np.asarray(a, np.float64))) for a in (f.R, f.t)):
             raise ValueError(f"frames: frame {f.frame} has a pose that is not finite")
@@ -347,8 +355,9 @@ def refine_track(
         return RefinedTrack(list(frames), 0.0, 0.0, 0, rotation_sigma or _FALLBACK[0],
                             translation_sigma or _FALLBACK[1])  # fmt: skip
     assert centre is not None
+    links = _links(frames, used)
     if rotation_sigma is None or translation_sigma is None:
-        found = motion_sigmas(frames, centre)
+        found = _sigmas(frames, links, np.asarray(centre, np.float64))
         rotation_sigma = found[0] if rotation_sigma is None else rotation_sigma
         translation_sigma = found[1] if translation_sigma is None else translation_sigma
     F = bucket_points(max(len(frames), 2))
@@ -371,7 +380,7 @@ def refine_track(
         model[i, :n], planes[i, :n], mask[i, :n] = rows.model, rows.planes, rows.mask
         omega[i, :n] = rows.weights / np.maximum(rows.scales, 1e-12) ** 2
     link = np.zeros(F, bool)
-    link[_links(frames)] = True
+    link[links] = True
     distance = np.median(np.linalg.norm(R[active] @ centre + t[active], axis=1))
     inv_sigma = np.array(
         [1 / (translation_sigma * max(distance, 1e-12)), 1 / math.radians(rotation_sigma)], f
