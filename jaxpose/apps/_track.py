@@ -68,12 +68,13 @@ from typing import NamedTuple
 import numpy as np
 
 from ..features._klt import detect_corners, relit, track_points
-from ..features._moving_edges import _grey, moving_edges
+from ..features._moving_edges import _grey
 from ..geometry._validate import no_type_check
 from ._polyhedron import Polyhedron
 from ._symmetry import NEAR_TWIN, turned
 from ._symmetry import symmetries as _symmetries
 from ._track_contrasts import _NO_CONTRAST, _Contrasts, _expected, _remembered, _sides, _unchanged
+from ._track_edges import _edge_measurements, _undistort
 from ._track_keypoints import _NO_CORNERS, _Corners, _keypoint_matches, _Keypoints
 from ._track_options import TrackOptions
 from ._track_solve import Measurements, Solved, TrackRows, _orthonormal, moved_pixels, solve_frame
@@ -81,10 +82,8 @@ from ._visibility import (
     MeshGeometry,
     _check_pose,
     cast_rays,
-    edge_samples,
     face_mask,
     mesh_geometry,
-    project,
 )
 
 __all__ = ["TrackedFrame", "track"]
@@ -128,75 +127,10 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(w, np.float64).reshape(3, 1))[0]
 
 
-def _undistort(pixels: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
-    """Pixels of the pinhole camera `K` from distorted ones (unchanged without `dist`)."""
-    if dist is None or len(pixels) == 0:
-        return pixels
-    import cv2
-
-    out = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, dist, P=K)
-    return out.reshape(-1, 2)
-
-
 def _solve(R, t, K, meas: Measurements, options: TrackOptions) -> Solved:
     """The compiled robust solve of `jaxpose.apps._track_solve` with `options`' settings."""
     return solve_frame(R, t, K, meas, iterations=options.iterations,
                        min_rows=options.min_rows, min_scale=options.min_scale)  # fmt: skip
-
-
-def _edge_measurements(grey, geo, K, dist, R, t, size, search, contrasts, options, last=None):
-    samples = edge_samples(geo, K, dist, R, t, spacing=options.spacing, image_size=size,
-                           margin=search + 2.0, grazing=options.grazing)  # fmt: skip
-    smear = None  # (each sample's motion along its normal since the last frame held)
-    if last is not None and options.exposure > 0:
-        before = project(samples.points @ last[0].T + last[1], K, dist)
-        smear = options.exposure * np.abs(((samples.pixels - before) * samples.normals).sum(1))
-    ends = np.asarray(geo.model.edges)[samples.edge]
-    a, b = geo.model.vertices[ends[:, 0]], geo.model.vertices[ends[:, 1]]
-    frac = ((samples.points - a) * (b - a)).sum(axis=1) / np.maximum(
-        ((b - a) ** 2).sum(axis=1), 1e-300
-    )
-    keys = samples.edge + np.clip(frac, 0.0, 0.999)
-    # (with the smear, other image edges looked for as far as the first round's search,
-    # those of the model's other edges not counted)
-    others = None if smear is None else _crossings(geo, K, dist, R, t, samples)
-    found = moving_edges(grey, samples.pixels, samples.normals, search=search,
-                         threshold=options.threshold, mask=samples.visible,
-                         contrast=_expected(contrasts, keys), choose=options.choose,
-                         ratio=options.ratio, smear=smear, reach=options.search,
-                         others=others)  # fmt: skip
-    wanted = samples.visible & (samples.outline | (options.edges == "all"))
-    keep = found.valid & wanted
-    if found.rival is not None:  # a crease merged with another edge (blurred frames): out
-        keep &= samples.outline | ~found.rival
-    q = found.matched[keep]
-    ahead = q + np.column_stack([found.normals[keep, 1], -found.normals[keep, 0]])
-    qu, au = _undistort(q, K, dist), _undistort(ahead, K, dist)
-    d = au - qu
-    n = np.column_stack([-d[:, 1], d[:, 0]])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    lines = np.column_stack([n, -(n * qu).sum(axis=1)])
-    return samples.points[keep], lines, keys[keep], found.strength[keep], int(wanted.sum())
-
-
-def _crossings(geo: MeshGeometry, K, dist, R, t, samples) -> np.ndarray:
-    """`(S, M)`: where each of the `M` model edges seen (those with a visible sample)
-    crosses each sample's normal line, as an offset along the normal (px; NaN where the
-    line misses the edge's projected segment, and for the sample's own edge)."""
-    seen = np.unique(samples.edge[samples.visible])
-    ends = np.asarray(geo.model.edges)[seen]
-    px = project(geo.model.vertices @ R.T + t, K, dist)
-    a, b = px[ends[:, 0]], px[ends[:, 1]]  # (M, 2): straight between the vertices' pixels
-    n = samples.normals / np.maximum(np.linalg.norm(samples.normals, axis=1, keepdims=True), 1e-12)
-    # p + s n = a + l (b - a), solved for (s, l) by Cramer's rule
-    ab, rhs = (b - a)[None, :, :], a[None, :, :] - samples.pixels[:, None, :]
-    det = ab[..., 0] * n[:, None, 1] - n[:, None, 0] * ab[..., 1]
-    solvable = np.abs(det) > 1e-9
-    det = np.where(solvable, det, 1.0)
-    s = (ab[..., 0] * rhs[..., 1] - rhs[..., 0] * ab[..., 1]) / det
-    along = (n[:, None, 0] * rhs[..., 1] - n[:, None, 1] * rhs[..., 0]) / det
-    crossed = solvable & (along >= 0) & (along <= 1) & (seen[None, :] != samples.edge[:, None])
-    return np.where(crossed, s, np.nan)
 
 
 class _Fit(NamedTuple):

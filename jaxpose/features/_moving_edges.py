@@ -186,6 +186,7 @@ def moving_edges(
     smear=None,
     reach: int | None = None,
     others=None,
+    limits=None,
 ) -> EdgeMatches:
     """Find, along each sample's normal, the image edge of the expected orientation (see
     the module docstring).
@@ -222,6 +223,10 @@ def moving_edges(
     - `others`: `(S, M)` offsets (px) along each sample's normal where other edges of
       the model are predicted to cross its line (NaN: none): an image edge there is no
       rival (the model explains it). None: none.
+    - `limits`: `(S, 2)` the least and greatest offset (px along the normal, both
+      excluded) each sample's match may take (-inf, inf: none), e.g. half the way to
+      the other model edges predicted to cross its line, so that an image edge answers
+      only the sample of the projected edge nearest it. None: any within `search`.
 
     **Returns:** `EdgeMatches`.
 
@@ -266,6 +271,10 @@ def moving_edges(
         others = np.asarray(others, dtype=np.float64)
         if others.ndim != 2 or len(others) != count or np.any(np.isinf(others)):
             raise ValueError(f"others must be ({count}, M) offsets, NaN for none")
+    if limits is not None:
+        limits = np.asarray(limits, dtype=np.float64)
+        if limits.shape != (count, 2) or np.any(np.isnan(limits)):
+            raise ValueError(f"limits must be ({count}, 2) offsets, -inf/inf for none")
     halves = np.zeros(count, int)  # the ramp's box of `2 h + 1` derivatives
     if smear is not None:
         smear = np.asarray(smear, dtype=np.float64).reshape(-1)
@@ -297,6 +306,9 @@ def moving_edges(
     if ratio is not None:  # the expected contrast's size, within a factor `ratio`
         size = np.abs(expected)[:, None]
         allowed &= (size == 0) | ((score >= size / ratio) & (score <= size * ratio))
+    if limits is not None:  # (the offsets -k..k within each sample's limits)
+        offsets = np.arange(-k, k + 1)[None, :]
+        allowed &= (offsets > limits[:, :1]) & (offsets < limits[:, 1:])
     if choose == "nearest":
         padded = np.pad(score, ((0, 0), (1, 1)), constant_values=-np.inf)
         peaks = (score >= padded[:, :-2]) & (score > padded[:, 2:]) & allowed
@@ -328,7 +340,7 @@ def moving_edges(
     valid = keep & interior & allowed_best & (strong | smeared)
     offset = np.where(valid, best - k + delta, 0.0)
     strength = np.where(valid, d[rows, best], 0.0)
-    ramp = _ramp_matches(further, sign, expected, ratio, threshold, halves, pad)
+    ramp = _ramp_matches(further, sign, expected, ratio, threshold, halves, pad, limits)
     if ramp is not None:  # a blurred frame: the smeared samples' ramps
         use, ramp_offset, ramp_strength, ramp_valid = ramp
         valid = np.where(use, keep & ramp_valid, valid)
@@ -399,7 +411,7 @@ def _rivals(d, at, h, threshold, others=None) -> np.ndarray:
     return np.any((np.abs(d) >= threshold) & ~mine[rows, label], axis=1)
 
 
-def _ramp_matches(d, sign, expected, ratio, threshold, h, pad):
+def _ramp_matches(d, sign, expected, ratio, threshold, h, pad, limits=None):
     """Each smeared sample's edge as a ramp of the predicted width, on a blurred frame:
     `(use, offset index, strength, valid)` (`use`: the samples whose box `2 h + 1` is 3
     or more), or None where no sample is smeared or the frame is not blurred.
@@ -411,9 +423,9 @@ def _ramp_matches(d, sign, expected, ratio, threshold, h, pad):
     break its derivatives into pieces leave it whole. The match is the largest box sum
     of the expected sign (a step of at least `threshold` grey levels, centred within the
     search range; with `ratio`, its mean derivative within `ratio` of the expected
-    contrast), at the centroid of the box sums above `_RAMP_TOP` of it; that top must end
-    inside the range. The strength is the mean derivative over the box (the units of
-    `strength`).
+    contrast; with `limits` `(S, 2)`, centred within them), at the centroid of the box
+    sums above `_RAMP_TOP` of it; that top must end inside the range. The strength is
+    the mean derivative over the box (the units of `strength`).
 
     A sharp edge also gives a flat-topped run of box sums, but its step is within a
     pixel or two; the frame is taken as blurred when, over at least `_JUDGED` samples
@@ -428,6 +440,7 @@ def _ramp_matches(d, sign, expected, ratio, threshold, h, pad):
     d, sign, expected, h = (np.asarray(a)[use] for a in (d, sign, expected, h))  # (the rest unused)
     count, width = d.shape
     j = np.arange(width)
+    k = (width - 1) // 2 - pad  # (the search range)
     total = np.concatenate([np.zeros((count, 1)), np.cumsum(d, axis=1)], axis=1)
     rows = np.arange(count)
     hi = np.clip(j[None, :] + h[:, None] + 1, 0, width)
@@ -435,6 +448,9 @@ def _ramp_matches(d, sign, expected, ratio, threshold, h, pad):
     step = total[rows[:, None], hi] - total[rows[:, None], lo]  # (S, width): box sums
     score = np.where(sign[:, None] == 0, np.abs(step), step * sign[:, None])
     allowed = (j >= pad) & (j < width - pad) & (score >= threshold)  # centres -k..k
+    if limits is not None:  # (the centres within each sample's limits)
+        lo, hi = limits[use, :1], limits[use, 1:]
+        allowed &= (j[None, :] - pad - k > lo) & (j[None, :] - pad - k < hi)
     box = (2 * h + 1)[:, None]
     if ratio is not None:
         size = np.abs(expected)[:, None]

@@ -247,6 +247,47 @@ def test_a_video_sized_image():
     assert found.valid.any() and np.all(np.abs(found.offset) <= 10)
 
 
+def test_limits_keep_a_sample_to_its_own_edge():
+    # A sliver: a face of 200, a face of 240 three pixels wide, the background at 40; the
+    # crease (x = 29.5, +40) and the outline (x = 32.5, -200). The crease's sample, at it,
+    # takes the stronger outline; limited to half the way to the outline's predicted
+    # place (+1.5 px), the crease.
+    image = np.full((60, 80), 200, np.uint8)
+    image[:, 30:33] = 240
+    image[:, 33:] = 40
+    points = np.array([[29.5, 20.0], [29.5, 40.0]])
+    normals = np.tile([1.0, 0.0], (2, 1))
+    plain = moving_edges(image, points, normals, search=6)
+    np.testing.assert_allclose(plain.matched[:, 0], 32.5)
+    limits = np.array([[-np.inf, 1.5], [-np.inf, 1.5]])
+    own = moving_edges(image, points, normals, search=6, limits=limits)
+    np.testing.assert_allclose(own.matched[:, 0], 29.5)
+    np.testing.assert_allclose(own.strength, 40.0)
+    # The outline's sample (at 32.5, the crease predicted 3 px before it) keeps the outline.
+    outline = moving_edges(image, points + [3.0, 0.0], normals, search=6,
+                           limits=[[-1.5, np.inf]] * 2)  # fmt: skip
+    np.testing.assert_allclose(outline.matched[:, 0], 32.5)
+    # With nothing within its limits, no match.
+    none = moving_edges(image, points, normals, search=6, limits=[[0.5, 2.0]] * 2)
+    assert not none.valid.any()
+    # A smeared ramp's box is held to the limits too: a second, stronger ramp 14 px
+    # beyond the first is the match without them and out of reach with them.
+    x = np.arange(80, dtype=np.float64)
+    ramps = 40 + 40 * np.clip((x - 22) / 6, 0, 1) + 100 * np.clip((x - 36) / 6, 0, 1)
+    rng = np.random.default_rng(2)
+    image = np.tile(ramps, (200, 1)) + rng.normal(0.0, 1.0, (200, 80))
+    points = np.column_stack([np.full(40, 28.0), np.linspace(8, 190, 40)])
+    normals = np.tile([1.0, 0.0], (40, 1))
+    smear = np.full(40, 6.0)
+    free = moving_edges(image, points, normals, search=16, smear=smear)
+    held = moving_edges(image, points, normals, search=16, smear=smear,
+                        limits=np.tile([-np.inf, 6.0], (40, 1)))  # fmt: skip
+    assert free.blurred and held.blurred
+    assert free.valid.mean() > 0.9 and held.valid.mean() > 0.9
+    assert np.all(np.abs(free.matched[free.valid, 0] - 39.0) < 1.0)
+    assert np.all(np.abs(held.matched[held.valid, 0] - 25.0) < 1.0)
+
+
 def test_bad_arguments():
     image = np.zeros((20, 20), np.uint8)
     p, n = np.zeros((3, 2)), np.ones((3, 2))
@@ -270,5 +311,9 @@ def test_bad_arguments():
         moving_edges(image, p, n, choose="best")
     with pytest.raises(ValueError, match="smear"):
         moving_edges(image, p, n, smear=[1.0, -1.0, 2.0])
+    with pytest.raises(ValueError, match="limits"):
+        moving_edges(image, p, n, limits=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="limits"):
+        moving_edges(image, p, n, limits=np.full((3, 2), np.nan))
     empty = moving_edges(image, np.zeros((0, 2)), np.zeros((0, 2)))
     assert empty.matched.shape == (0, 2) and empty.valid.shape == (0,)
