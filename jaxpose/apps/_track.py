@@ -9,7 +9,10 @@ Per frame, from the previous pose (the prediction):
    the image line through the matched point `q` with the edge's normal `n`;
 2. **KLT points** (`jaxpose.features.track_points`) followed from the previous frame,
    each with its model point found once by casting its ray onto the mesh
-   (`cast_rays`); their set is topped up inside the visible faces when it runs low.
+   (`cast_rays`); their set is topped up inside the visible faces when it runs low. A
+   point is kept only where its patch still correlates with the one it left
+   (`TrackOptions.min_correlation`): on a plain face the corners are the image's noise,
+   which the flow cannot follow.
    Where the mean grey level changed by over 5% (an exposure step), the previous frame
    is first brought to the new one's mean and spread.
 3. **The linear method** (`jaxpose.apps._track_solve`, one compiled program per bucket
@@ -20,8 +23,8 @@ Per frame, from the previous pose (the prediction):
    iteration is Gauss-Newton on the pixel errors. Rows are weighted by Tukey's biweight
    of their residual over a robust scale (edges and points apart), so that wrong
    matches (a hand over the edge, a neighbouring edge near a corner) lose their say,
-   and each kind by the inverse square of its scale (points tracked on a plain face,
-   mostly noise, hardly count). The 6 x 6 normal equations are solved, the motion
+   and each kind by the inverse square of its scale (points followed poorly hardly
+   count). The 6 x 6 normal equations are solved, the motion
    applied exactly, and the step repeated.
 
 With a textured model (`textured`, OpenCV's keypoints YAML), its points matched to the
@@ -388,7 +391,8 @@ def track(
                 # KLT points from the previous frame; the pose predicted.
                 if previous is not None and len(corners.pixels) and options.use_points:
                     tracks = track_points(relit(previous, grey8), grey8, corners.pixels,
-                                          fb_threshold=options.fb_threshold)  # fmt: skip
+                                          fb_threshold=options.fb_threshold,
+                                          min_correlation=options.min_correlation)  # fmt: skip
                     corners = _Corners(tracks.points[tracks.valid], corners.model[tracks.valid])
                 R_pred, t_pred = pose
                 if options.predict == "velocity" and motion is not None:

@@ -91,6 +91,42 @@ def test_forward_backward_rejects_occluded_points():
     np.testing.assert_array_equal(tracks.points[~tracks.valid], corners[~tracks.valid])
 
 
+def test_points_on_noise_alone_are_refused_by_their_correlation():
+    # A plain face (grey 150 on 40, no texture: its only corners are the noise, sigma 2,
+    # drawn afresh on each frame) moved 4 px right and 3 down: the flow cannot follow
+    # such points; many pass the forward-backward check and lie pixels from where the
+    # motion takes them. Their patches do not correlate from frame to frame; a textured
+    # box's do, and are kept.
+    rng = np.random.default_rng(4)
+
+    def plain(x0, y0):
+        image = np.full((240, 320), 40.0)
+        image[y0 : y0 + 150, x0 : x0 + 200] = 150.0
+        return np.clip(np.round(image + rng.normal(0.0, 2.0, image.shape)), 0, 255).astype(np.uint8)
+
+    a, b = plain(50, 40), plain(54, 43)
+    inside = np.zeros((240, 320), np.uint8)
+    inside[50:180, 60:240] = 255  # (the face, 10 px in from its borders)
+    corners = detect_corners(a, inside, max_corners=100)
+    followed = track_points(a, b, corners)
+    error = np.linalg.norm(followed.points - (corners + [4.0, 3.0]), axis=1)
+    assert len(corners) >= 50 and followed.valid.mean() > 0.3
+    assert np.median(error[followed.valid]) > 1.0  # (the textured box: 0.1)
+    checked = track_points(a, b, corners, min_correlation=0.5)
+    assert checked.valid.mean() < 0.05
+    assert np.all(checked.correlation[checked.valid] >= 0.5)
+    assert np.percentile(checked.correlation[followed.valid], 90) < 0.5
+    assert followed.correlation is None
+    # The textured box's points correlate (about 1) and are kept.
+    p0, p1 = _poses([0.012, -0.01, 0.015], [0.3, -0.2, 0.8])
+    t0, t1 = _draw(p0), _draw(p1, noise=2.0, rng=np.random.default_rng(3))
+    corners = detect_corners(t0, face_mask(GEO, K, None, *p0, SIZE, erode=6), max_corners=200)
+    kept = track_points(t0, t1, corners, min_correlation=0.5)
+    base = track_points(t0, t1, corners)
+    assert kept.valid.sum() >= 0.95 * base.valid.sum()
+    assert np.median(kept.correlation[kept.valid]) > 0.9
+
+
 def test_top_up_avoids_existing_tracks():
     p0, _ = _poses([0, 0, 0], [0, 0, 0])
     a = _draw(p0)
@@ -115,6 +151,10 @@ def test_bad_arguments():
         track_points(image, image, np.full((1, 2), np.nan))
     with pytest.raises(ValueError, match="window"):
         track_points(image, image, np.zeros((1, 2)), window=4)
+    with pytest.raises(ValueError, match="min_correlation"):
+        track_points(image, image, np.zeros((1, 2)), min_correlation=1.5)
+    with pytest.raises(ValueError, match="patch"):
+        track_points(image, image, np.zeros((1, 2)), min_correlation=0.5, patch=4)
     assert detect_corners(image, np.zeros((40, 50), bool)).shape == (0, 2)
     empty = track_points(image, image, np.zeros((0, 2)))
     assert empty.points.shape == (0, 2) and empty.valid.shape == (0,)
