@@ -6,7 +6,9 @@ Per frame, from the previous pose (the prediction):
 
 1. **Moving edges** (`jaxpose.features.moving_edges`) along the visible model edges
    (`edge_samples`): each match says that the sample's model point `P` projects onto
-   the image line through the matched point `q` with the edge's normal `n`;
+   the image line through the matched point `q` with the edge's normal `n`; a sample
+   takes no match past the middle to another model edge running alongside its own
+   (`jaxpose.apps._track_edges`: a face seen edge-on, its crease beside the outline);
 2. **KLT points** (`jaxpose.features.track_points`) followed from the previous frame,
    each with its model point found once by casting its ray onto the mesh
    (`cast_rays`); their set is topped up inside the visible faces when it runs low. A
