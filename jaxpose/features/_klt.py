@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..geometry._validate import no_type_check
-from ._moving_edges import _grey
+from ._moving_edges import _grey, _read
 from ._raster import _dots
 
 __all__ = ["EXPOSURE_STEP", "Tracks", "detect_corners", "relit", "track_points"]
@@ -223,21 +223,10 @@ def track_points(
 def _correlation(prev, curr, a: np.ndarray, b: np.ndarray, patch: int) -> np.ndarray:
     """`(N,)` the normalised cross-correlation of the `patch` x `patch` neighbourhoods of
     `a` in `prev` and `b` in `curr` (bilinear; 0 where either is flat)."""
-    import cv2
-
     r = np.arange(patch, dtype=np.float64) - patch // 2
-    grid = np.stack(np.meshgrid(r, r), axis=-1).reshape(-1, 2)  # (P, 2)
-
-    def read(image, at):
-        where = (at[:, None, :] + grid[None]).astype(np.float32)  # (N, P, 2)
-        image = image.astype(np.float32)
-        return np.concatenate([  # (OpenCV maps have fewer than 32767 rows)
-            cv2.remap(image, part[..., 0], part[..., 1], cv2.INTER_LINEAR,
-                      borderMode=cv2.BORDER_REPLICATE)
-            for part in np.array_split(where, -(-len(where) // 32000))
-        ]).astype(np.float64)  # fmt: skip
-
-    x, y = read(prev, a), read(curr, b)
+    grid = np.stack(np.meshgrid(r, r), axis=-1).reshape(1, -1, 1, 2)  # (1, P, 1, 2)
+    x = _read(prev.astype(np.float32), a[:, None, None, :] + grid)  # (N, P)
+    y = _read(curr.astype(np.float32), b[:, None, None, :] + grid)
     x -= x.mean(axis=1, keepdims=True)
     y -= y.mean(axis=1, keepdims=True)
     norm = np.sqrt((x * x).sum(axis=1) * (y * y).sum(axis=1))
