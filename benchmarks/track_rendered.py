@@ -1,7 +1,8 @@
 """The tracker against the issue's targets on rendered sequences (issue #32): objects x
 conditions x starts, a few trajectories each, with known poses.
 
-Objects (`OBJECTS`):
+Objects (`OBJECTS`; the issue names the photo-textured box and the prism,
+`ISSUE_OBJECTS`, and the flat box is the project's own harder variant):
 
 - `box_flat`: the box of OpenCV's tutorial (`box.ply`, cm), faces flat-shaded (one grey
   level each, which its mesh carries as `face_colours`, as a PLY file with face colours
@@ -74,6 +75,10 @@ import numpy as np
 from ._harness import write_json
 
 OBJECTS = ("box_flat", "box_photo", "prism")
+#: The objects the issue names for its rendered sequences (the box textured from the
+#: photograph, the bench's prism); `box_flat` is the project's own harder variant, whose
+#: plain faces give the tracker nothing but edges.
+ISSUE_OBJECTS = ("box_photo", "prism")
 CONDITIONS = ("noise", "motion_blur", "lighting", "clutter", "partial_occlusion",
               "full_occlusion")  # fmt: skip
 STARTS = ("given", "recognition")
@@ -392,6 +397,7 @@ def run(seeds: int = 3, frames: int = 24, objects=OBJECTS, conditions=CONDITIONS
             "seen_on_target": SEEN_TARGET,
             "back_after": BACK_TARGET,
         },  # fmt: skip
+        "issue_objects": [name for name in objects if name in ISSUE_OBJECTS],
         "recognition_first_call_s": compile_s,  # from the mesh
         "textured_recognition_first_call_s": textured_s,  # keypoints (their first frame)
         "cells": cells,
@@ -418,7 +424,10 @@ def main(argv=None) -> None:
     out = Path(args.out or f"benchmarks/results/{name}")
     result = run(seeds, args.frames, supersample=args.supersample)
     met = sum(c["targets_met"] for c in result["cells"])
-    print(f"targets met in {met} of {len(result['cells'])} cells")
+    named = [c for c in result["cells"] if c["object"] in ISSUE_OBJECTS]
+    print(f"targets met in {met} of {len(result['cells'])} cells; on the issue's objects "
+          f"({', '.join(ISSUE_OBJECTS)}) in {sum(c['targets_met'] for c in named)} of "
+          f"{len(named)}")  # fmt: skip
     for c in result["cells"]:
         if not c["targets_met"]:
             print(f"  missed: {c['object']} {c['condition']} {c['start']}: seen on target "

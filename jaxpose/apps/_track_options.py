@@ -21,7 +21,9 @@ class TrackOptions:
       `init_rounds`: the rounds at most on a (re)initialisation frame, from the given
       or recognised pose (recognition's pose can be a degree or two off, and in clutter
       each round moves it only part of the way: on the photo-textured box in clutter,
-      1.5 degrees off, three rounds left it 1.3 degrees off, twenty 0.2).
+      1.5 degrees off, three rounds left it 1.3 degrees off, twenty 0.2);
+      `init_max_scale`: those fits end with a few rounds whose robust scale is at most
+      this (px; None: no such rounds), where clutter beside the edges weighs nothing.
     - `max_corners`: KLT points kept at most; `min_corners`: top the set up below this;
       `erode`: pixels kept away from the faces' borders when detecting;
       `fb_threshold`: forward-backward check (px); `min_correlation`: the least
@@ -55,6 +57,10 @@ class TrackOptions:
       not pile up in the model; the edges hold the pose to the model). False: once,
       when a point is detected.
     - `use_edges`, `use_points`: which measurements take part.
+    - `recheck_ratio`: a tracked frame whose edges' RMS residual is over this ratio to
+      the usual one (the median of the last tracked frames') is fitted again without
+      the contrasts remembered, and the fit with the lower residual kept (where an
+      occluder slides along an edge its contrast changes); None: never.
     - `min_support`, `max_rms_ratio`, `min_rms`: when a frame's measurements support
       its pose (otherwise the frame is `"lost"`): at least `min_rows` weighted rows, at
       least `min_support` of the visible edge samples matched with a nonzero weight
@@ -95,6 +101,7 @@ class TrackOptions:
     rounds: int = 3
     settle: float = 0.1
     init_rounds: int = 20
+    init_max_scale: float | None = 0.35
     max_corners: int = 200
     min_corners: int = 60
     erode: int = 6
@@ -106,6 +113,7 @@ class TrackOptions:
     grazing: float = 90.0
     choose: str = "strongest"
     ratio: float | None = 2.0
+    recheck_ratio: float | None = 1.3
     edges: str = "all"
     predict: str = "velocity"
     recast: bool = True
@@ -136,6 +144,7 @@ _CHECKS: tuple[tuple[str, str, object], ...] = (
     ("rounds", "int", 1),
     ("settle", "length", None),
     ("init_rounds", "int", 1),
+    ("init_max_scale", "ratio", 0),
     ("max_corners", "int", 1),
     ("min_corners", "int", 0),
     ("erode", "int", 0),
@@ -147,6 +156,7 @@ _CHECKS: tuple[tuple[str, str, object], ...] = (
     ("grazing", "angle", 90),
     ("choose", "choice", ("strongest", "nearest")),
     ("ratio", "ratio", 1),
+    ("recheck_ratio", "ratio", 1),
     ("edges", "choice", ("all", "outline")),
     ("predict", "choice", ("velocity", "still")),
     ("recast", "bool", None),

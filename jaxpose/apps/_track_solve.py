@@ -17,10 +17,10 @@ pixel errors (the `"depth"` weighting of `jaxpose.solvers.linear`).
 **Robust weights** (iteratively reweighted least squares). Each measurement is weighted
 by Tukey's biweight of its residual (an edge's distance, a point's pixel error) over a
 robust scale (1.4826 times the median, edges and points apart, never below
-`min_scale`), and each kind by the inverse square of its scale (the better measured
-kind counts more). The 6 x 6 normal equations are equilibrated and solved by the
-unrolled Cholesky of `jaxpose.solvers._linalg.cholesky_solve`, the motion applied exactly
-(`R <- Rot(r) R`, `jaxpose.geometry.rotvec_to_matrix`), and the step repeated
+`min_scale` and at most `max_scale`), and each kind by the inverse square of its scale
+(the better measured kind counts more). The 6 x 6 normal equations are equilibrated
+and solved by the unrolled Cholesky of `jaxpose.solvers._linalg.cholesky_solve`, the
+motion applied exactly (`R <- Rot(r) R`, `jaxpose.geometry.rotvec_to_matrix`), and the step repeated
 (`jax.lax.while_loop`: `iterations` steps, or until a step has fewer than
 `max(min_rows, 6)` weighted rows (`ok` False) or a non-finite solution (the last pose
 kept)).
@@ -151,9 +151,9 @@ def plane_rows(
     return jnp.where(mask, r, 0), jnp.where(mask[:, :, None], J, 0), centre
 
 
-def _robust_scales(residual: Array, kinds: Array, min_scale: Array) -> Array:
-    """`max(1.4826 median(residual[kind]), min_scale)` for each row of `kinds` `(k, U)`
-    (bool), 1 where a kind has none. `residual` is `>= 0`.
+def _robust_scales(residual: Array, kinds: Array, min_scale: Array, max_scale: Array) -> Array:
+    """`max(1.4826 median(residual[kind]), min_scale)`, at most `max(max_scale, min_scale)`,
+    for each row of `kinds` `(k, U)` (bool), 1 where a kind has none. `residual` is `>= 0`.
 
     The median is that of `np.median` (the mean of the two middle values for an even
     count), found without sorting (XLA:CPU sorts through a comparator call per
@@ -180,7 +180,7 @@ def _robust_scales(residual: Array, kinds: Array, min_scale: Array) -> Array:
     middle = jax.lax.bitcast_convert_type(low, dtype)
     k = kinds.shape[0]
     median = 0.5 * (middle[:k] + middle[k:])
-    scale = jnp.maximum(1.4826 * median, min_scale)
+    scale = jnp.minimum(jnp.maximum(1.4826 * median, min_scale), jnp.maximum(max_scale, min_scale))
     return jnp.where(count > 0, scale, jnp.ones((), dtype))
 
 
@@ -203,7 +203,7 @@ class _State(NamedTuple):
     stop: Array
 
 
-def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_scale):
+def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_scale, max_scale):
     """The robust small-movement solve of one frame (module docstring), padded shapes.
     Returns `(R, t, tukey (U,), scales (U,), rms, judged, ok)`."""
     dtype = planes.dtype
@@ -215,7 +215,7 @@ def _robust_solve(R, t, model, planes, mask, point, iterations, min_rows, min_sc
     def body(s: _State) -> _State:
         r, J, centre = plane_rows(s.R, s.t, model, planes, mask)
         residual = jnp.sqrt(jnp.sum(r * r, axis=1))  # |edge distance|, |point error|
-        s_e, s_p = _robust_scales(residual, jnp.stack([edge, pt]), min_scale)
+        s_e, s_p = _robust_scales(residual, jnp.stack([edge, pt]), min_scale, max_scale)
         scale = jnp.where(point, s_p, s_e)
         tukey = jnp.where(unit, _tukey(residual, scale), 0)
         w = tukey[:, None] * mask  # row weights
@@ -293,9 +293,10 @@ _READY: dict[tuple, object] = {}
 
 
 def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
-                min_scale: float) -> Solved:  # fmt: skip
+                min_scale: float, max_scale: float = np.inf) -> Solved:  # fmt: skip
     """The robust small-movement solve of one frame from `(R, t)` (module docstring),
-    compiled; numpy in and out (float64)."""
+    compiled; numpy in and out (float64). `max_scale` caps the robust scales (px; never
+    below `min_scale`)."""
     E, P = len(meas.edge_model), len(meas.point_model)
     U = E + P
     if E + 2 * P < max(min_rows, 6):  # too few rows to weigh: nothing to solve
@@ -306,7 +307,8 @@ def solve_frame(R, t, K, meas: Measurements, *, iterations: int, min_rows: int,
     size = bucket_points(U)
     padded = track_rows(K, meas, size, f)
     args = (np.asarray(R, f), np.asarray(t, f), padded.model, padded.planes, padded.mask,
-            padded.point, np.int32(iterations), np.int32(min_rows), f(min_scale))  # fmt: skip
+            padded.point, np.int32(iterations), np.int32(min_rows), f(min_scale),
+            f(max_scale))  # fmt: skip
     run = _READY.get((size, f))
     if run is None:
         out = _PROGRAM(*args)

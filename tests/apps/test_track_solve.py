@@ -20,10 +20,11 @@ def _orthonormal(R):
     return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
 
-def _tukey(residual, min_scale):
+def _tukey(residual, min_scale, max_scale=np.inf):
     if len(residual) == 0:
         return np.zeros(0), 1.0
-    scale = max(1.4826 * float(np.median(np.abs(residual))), min_scale)
+    scale = min(max(1.4826 * float(np.median(np.abs(residual))), min_scale),
+                max(max_scale, min_scale))  # fmt: skip
     z = residual / (TUKEY * scale)
     return np.where(np.abs(z) < 1, (1 - z**2) ** 2, 0.0), scale
 
@@ -51,16 +52,16 @@ def _rows(R, t, K, meas):
     return np.concatenate([re, rp]), J, centre
 
 
-def reference_solve(R, t, K, meas, iterations=3, min_rows=12, min_scale=0.3):
+def reference_solve(R, t, K, meas, iterations=3, min_rows=12, min_scale=0.3, max_scale=np.inf):
     """The tracker's numpy solve as it was: `(R, t, w_e, w_p, rms, judged, ok)`."""
     n_e, n_p = len(meas.edge_model), len(meas.point_model)
     w_e, w_p = np.zeros(n_e), np.zeros(n_p)
     rms, judged, ok = 0.0, 0.0, False
     for _ in range(iterations):
         r, J, centre = _rows(R, t, K, meas)
-        w_e, s_e = _tukey(r[:n_e], min_scale)
+        w_e, s_e = _tukey(r[:n_e], min_scale, max_scale)
         r_p = r[n_e:].reshape(-1, 2)
-        w_p, s_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), min_scale)
+        w_p, s_p = _tukey(np.sqrt((r_p**2).sum(axis=1)), min_scale, max_scale)
         w = np.concatenate([w_e, np.repeat(w_p, 2)])
         if np.count_nonzero(w) < max(min_rows, 6):
             ok = False
@@ -127,6 +128,23 @@ def test_compiled_solve_matches_the_numpy_reference(seed, n_edges, n_points):
         np.testing.assert_allclose([got.rms, got.judged], want[4:6], rtol=1e-8)
         assert got.rows.weights.shape == (n_edges + n_points,)
         assert np.all(np.isfinite(got.rows.weights)) and np.all(got.rows.weights >= 0)
+
+
+@pytest.mark.parametrize("max_scale", [0.35, 0.1])
+def test_a_capped_robust_scale_matches_the_numpy_reference(max_scale):
+    # (noise 1 px: the median's scale, about 1.5 px, is above the cap; a cap below
+    # min_scale = 0.3 is min_scale)
+    meas, R, t = _problem(11, 200, 80, noise=1.0)
+    want = reference_solve(R, t, K, meas, iterations=3, max_scale=max_scale)
+    got = solve_frame(R, t, K, meas, iterations=3, min_rows=12, min_scale=0.3,
+                      max_scale=max_scale)  # fmt: skip
+    free = solve_frame(R, t, K, meas, iterations=3, min_rows=12, min_scale=0.3)
+    assert got.ok and want[6]
+    np.testing.assert_allclose(got.R, want[0], atol=1e-10)
+    np.testing.assert_allclose(got.t, want[1], atol=1e-8)
+    np.testing.assert_allclose(got.w_e, want[2], atol=1e-8)
+    np.testing.assert_allclose(got.rows.scales, max(max_scale, 0.3))
+    assert np.count_nonzero(got.w_e) < np.count_nonzero(free.w_e)  # (the cap rejects more)
 
 
 def test_the_solve_recovers_the_pose_and_rejects_the_outliers():
