@@ -35,13 +35,17 @@ measurements (opt-in; on `box.mp4` they do not help: `docs/tracking.md`).
 
 Each edge sample expects the contrast (sign and size) that the match nearest to it on
 the model had on the last frame, so that a printed line beside an edge is not taken
-for it.
+for it; a frame whose edges' residual grows over `TrackOptions.recheck_ratio` times the
+usual is fitted again without those contrasts, the lower residual kept (an occluder
+sliding along an edge changes its contrast).
 
 The edges are measured again from the refined pose (up to `rounds` times, the search
 range shrinking to `refine_search`, until a round hardly moves the pose); a fit from the
 predicted pose that the frame does not support is made again from the last pose held, as
 is, on the first frame after a (re)initialisation (no motion yet: the KLT points alone
-predict), every fit from a prediction, the better supported kept.
+predict), every fit from a prediction, the better supported kept. A (re)initialisation
+frame is fitted until it settles (`init_rounds`), then, where its edges' residual is
+over `init_max_scale`, a few rounds more with the robust scale at most that.
 Distortion is removed from the measurements first (`cv2.undistortPoints`).
 
 Each frame's status is honest: a frame whose measurements do not support the pose
