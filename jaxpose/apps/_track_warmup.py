@@ -45,7 +45,7 @@ def _solve_args(units: int) -> tuple:
     o = TrackOptions()
     return (np.eye(3, dtype=f), np.array([0.0, 0.0, 100.0], f), rows.model, rows.planes,
             rows.mask, rows.point, np.int32(o.iterations), np.int32(o.min_rows),
-            f(o.min_scale))  # fmt: skip
+            f(o.min_scale), f(np.inf))  # fmt: skip
 
 
 def _refine_args(frames: int, units: int) -> tuple:
