@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..features._moving_edges import moving_edges
+from ..geometry import undistort_pixels
 from ._track_contrasts import _expected
 from ._visibility import MeshGeometry, edge_samples, project
 
@@ -38,13 +39,9 @@ ALONGSIDE = 35.0
 
 
 def _undistort(pixels: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
-    """Pixels of the pinhole camera `K` from distorted ones (unchanged without `dist`)."""
-    if dist is None or len(pixels) == 0:
-        return pixels
-    import cv2
-
-    out = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, dist, P=K)
-    return out.reshape(-1, 2)
+    """Pixels of the pinhole camera `K` from distorted ones (`undistort_pixels`;
+    unchanged without `dist`, and an empty set as given)."""
+    return pixels if len(pixels) == 0 else np.asarray(undistort_pixels(pixels, K, dist))
 
 
 def _crossings(geo: MeshGeometry, K, dist, R, t, samples) -> tuple[np.ndarray, np.ndarray]:

@@ -449,8 +449,8 @@ def _ramp_matches(d, sign, expected, ratio, threshold, h, pad, limits=None):
     score = np.where(sign[:, None] == 0, np.abs(step), step * sign[:, None])
     allowed = (j >= pad) & (j < width - pad) & (score >= threshold)  # centres -k..k
     if limits is not None:  # (the centres within each sample's limits)
-        lo, hi = limits[use, :1], limits[use, 1:]
-        allowed &= (j[None, :] - pad - k > lo) & (j[None, :] - pad - k < hi)
+        low, high = limits[use, :1], limits[use, 1:]
+        allowed &= (j[None, :] - pad - k > low) & (j[None, :] - pad - k < high)
     box = (2 * h + 1)[:, None]
     if ratio is not None:
         size = np.abs(expected)[:, None]
